@@ -1,0 +1,32 @@
+# The two entry points of the README: each does the whole set-up on a fresh
+# machine (virtualenv, project with dev extras, FMUs) and then runs.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test fmus bench clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+# Reinstall when the dependency list changes.
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+fmus: $(STAMP)
+	$(BIN)/v2i build-fmus
+
+demo: fmus
+	$(BIN)/v2i run scenarios/two_vehicles.toml --out runs/demo
+
+test: fmus
+	$(BIN)/python -m pytest -q
+
+bench: fmus
+	$(BIN)/python benchmarks/master_overhead.py
+
+clean:
+	rm -rf build runs

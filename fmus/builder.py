@@ -1,0 +1,156 @@
+"""Build the project's FMUs into `build/fmus/*.fmu`, skipping unchanged ones.
+
+Each `fmus/<name>/slave.py` defines one `V2iSlave` subclass; its class name
+is the FMU's model identifier. The FMU carries its own copy of the model
+sources (the shared base modules and its own folder), so it runs wherever
+Python and pythonfmu's runtime are present. A content hash of those sources
+(plus pythonfmu's version and this builder) decides whether to rebuild.
+Every FMU is checked with `fmpy.validation.validate_fmu`; any message fails
+the build.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib
+import inspect
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+DEFAULT_OUT = Path("build") / "fmus"
+# Modules of the `fmus` package every FMU needs at run time.
+_SHARED_MODULES = ("__init__.py", "slave_base.py", "units.py")
+
+
+# pythonfmu 0.7.0's runtime finds the slave class by re-executing this file in
+# the module's namespace and then releases a reference to that namespace it
+# never took (a Py_DECREF on the borrowed module dict). Without a balancing
+# reference per execution the namespace is freed after the first instance and
+# the next instantiation in the same process fails or crashes.
+_ENTRY_TEMPLATE = '''"""Entry point of the {cls} FMU (pythonfmu loads it by file name)."""
+import ctypes as _ctypes
+
+_ctypes.pythonapi.Py_IncRef(_ctypes.py_object(globals()))  # see fmus/builder.py
+
+from {module} import {cls}  # noqa: E402,F401
+'''
+
+
+class BuildError(RuntimeError):
+    """An FMU could not be built or did not validate."""
+
+
+@dataclass(frozen=True)
+class FmuSource:
+    """One FMU of the project: its folder and its slave class name."""
+
+    folder: Path
+    model_identifier: str
+
+    @property
+    def module(self) -> str:
+        return f"fmus.{self.folder.name}.slave"
+
+    def source_files(self) -> list[Path]:
+        own = sorted(p for p in self.folder.rglob("*.py") if "__pycache__" not in p.parts)
+        return [PACKAGE_DIR / m for m in _SHARED_MODULES] + own
+
+    def content_hash(self) -> str:
+        import pythonfmu
+
+        digest = hashlib.sha256()
+        digest.update(f"pythonfmu {pythonfmu.__version__}\n".encode())
+        for path in [Path(__file__).resolve(), *self.source_files()]:
+            digest.update(str(path.relative_to(PACKAGE_DIR)).encode() + b"\0")
+            digest.update(path.read_bytes() + b"\0")
+        return digest.hexdigest()
+
+
+@dataclass(frozen=True)
+class BuildResult:
+    name: str
+    path: Path
+    built: bool  # False when skipped because nothing changed
+
+
+def discover() -> list[FmuSource]:
+    """All FMUs of the project: every `fmus/<name>/slave.py` with one V2iSlave class."""
+    from fmus.slave_base import V2iSlave
+
+    sources = []
+    for slave_file in sorted(PACKAGE_DIR.glob("*/slave.py")):
+        module = importlib.import_module(f"fmus.{slave_file.parent.name}.slave")
+        classes = [
+            obj for _, obj in inspect.getmembers(module, inspect.isclass)
+            if issubclass(obj, V2iSlave) and obj is not V2iSlave and obj.__module__ == module.__name__
+        ]
+        if len(classes) != 1:
+            raise BuildError(f"{slave_file}: expected exactly one V2iSlave subclass, found {len(classes)}")
+        sources.append(FmuSource(slave_file.parent, classes[0].__name__))
+    return sources
+
+
+def _stage(source: FmuSource, staging: Path) -> Path:
+    """Lay out the FMU's resources: an entry script and a copy of its sources."""
+    package = staging / "fmus"
+    for path in source.source_files():
+        target = package / path.relative_to(PACKAGE_DIR)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(path, target)
+    # pythonfmu imports the entry script by its file name inside the FMU;
+    # naming it after the model identifier keeps FMUs apart in one process.
+    entry = staging / "entry" / f"{source.model_identifier}.py"
+    entry.parent.mkdir()
+    entry.write_text(_ENTRY_TEMPLATE.format(module=source.module, cls=source.model_identifier))
+    return entry
+
+
+def build_one(source: FmuSource, out_dir: Path) -> Path:
+    """Build and validate one FMU; returns the `.fmu` path."""
+    from fmpy.validation import validate_fmu
+    from pythonfmu.builder import FmuBuilder
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    target = out_dir / f"{source.model_identifier}.fmu"
+    with tempfile.TemporaryDirectory(prefix="v2i-fmu-") as tmp:
+        entry = _stage(source, Path(tmp))
+        FmuBuilder.build_FMU(entry, dest=target, project_files=[Path(tmp) / "fmus"])
+    problems = validate_fmu(str(target))
+    if problems:
+        target.unlink()
+        raise BuildError(f"{source.model_identifier}.fmu does not validate: " + "; ".join(problems))
+    return target
+
+
+def build_all(out_dir: Path = DEFAULT_OUT, force: bool = False, only: list[str] | None = None) -> list[BuildResult]:
+    """Build every FMU whose sources changed since its last build (or all with `force`)."""
+    out_dir = Path(out_dir)
+    results = []
+    sources = discover()
+    known = {s.model_identifier for s in sources}
+    for name in only or []:
+        if name not in known:
+            raise BuildError(f"unknown FMU {name!r}; the project has: {', '.join(sorted(known))}")
+    for source in sources:
+        if only and source.model_identifier not in only:
+            continue
+        fmu = out_dir / f"{source.model_identifier}.fmu"
+        stamp = out_dir / f"{source.model_identifier}.sha256"
+        digest = source.content_hash()
+        if not force and fmu.exists() and stamp.exists() and stamp.read_text().strip() == digest:
+            results.append(BuildResult(source.model_identifier, fmu, built=False))
+            continue
+        build_one(source, out_dir)
+        stamp.write_text(digest + "\n")
+        results.append(BuildResult(source.model_identifier, fmu, built=True))
+    return results
+
+
+def project_fmu_path(name: str, out_dir: Path = DEFAULT_OUT) -> Path | None:
+    """Path of a project FMU by model identifier, building it if needed; None if unknown."""
+    if name not in {s.model_identifier for s in discover()}:
+        return None
+    (result,) = build_all(out_dir, only=[name])
+    return result.path

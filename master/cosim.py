@@ -1,0 +1,322 @@
+"""The co-simulation master: fixed communication steps over FMU instances.
+
+Ordering:
+* `jacobi` (default): every due instance reads its inputs from the outputs of
+  the previous communication point, then all step. Each connection therefore
+  carries a delay of one communication step of its source, recorded per
+  connection in the run's metadata.
+* `gauss-seidel`: instances step one after another in the order of the
+  scenario file; an instance reads the outputs its predecessors produced in
+  this same step (no delay on forward connections, one source step on
+  backward ones).
+
+Instances with `step_multiple = m` step every m base steps with step size
+m*h; others see their outputs held in between.
+"""
+from __future__ import annotations
+
+import json
+import platform
+import shutil
+import signal
+import sys
+import time
+from array import array
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable
+
+from master import __version__
+from master.errors import DeadlineMissError, SimulationError
+from master.fmu_runtime import FmuInstance
+from master.pacing import Pacer
+from master.recorder import METADATA, RunRecorder
+from master.scenario import Scenario
+from master.stats import percentiles
+
+
+class Interrupted(Exception):
+    """SIGTERM/SIGINT during a run: stop, keep what was recorded."""
+
+
+@dataclass
+class _Member:
+    """An instance in the loop with its pre-bound input and output transfers."""
+
+    fmu: FmuInstance
+    multiple: int
+    inputs: list[tuple[Callable, list[int]]] = field(default_factory=list)  # (setter, source slots)
+    outputs: list[tuple[Callable, int, int]] = field(default_factory=list)  # (getter, first slot, end slot)
+
+
+@dataclass
+class RunResult:
+    run_dir: Path
+    status: str
+    metadata: dict[str, Any]
+    error: str | None = None
+
+
+def default_run_dir(scenario: Scenario, root: Path = Path("runs")) -> Path:
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    base = root / f"{scenario.name}-{stamp}"
+    path, n = base, 1
+    while path.exists():
+        n += 1
+        path = Path(f"{base}-{n}")
+    return path
+
+
+def connection_delays(scenario: Scenario) -> list[dict[str, Any]]:
+    """The delay each connection adds under the scenario's ordering (documented in metadata)."""
+    order = list(scenario.instances)
+    h = scenario.time.step
+    rows = []
+    for conn in scenario.connections:
+        src_step = scenario.instances[conn.src].step_multiple * h
+        if scenario.time.ordering == "jacobi" or order.index(conn.src) >= order.index(conn.dst):
+            delay = src_step
+        else:
+            delay = 0.0
+        rows.append({"connection": str(conn), "delay_s": delay})
+    return rows
+
+
+class CoSimulation:
+    """Runs one scenario into one run folder."""
+
+    def __init__(self, scenario: Scenario, run_dir: Path | None = None, quiet: bool = False):
+        self.scenario = scenario
+        self.run_dir = Path(run_dir) if run_dir else default_run_dir(scenario)
+        self.quiet = quiet
+        self._tmp_dirs: list[str] = []
+
+    # -- set-up -------------------------------------------------------------
+    def _instantiate(self) -> dict[str, _Member]:
+        from fmpy import extract
+
+        unzipped: dict[Path, str] = {}
+        t = self.scenario.time
+        members = {}
+        for inst in self.scenario.instances.values():
+            if inst.path not in unzipped:
+                unzipped[inst.path] = extract(str(inst.path))
+                self._tmp_dirs.append(unzipped[inst.path])
+            fmu = FmuInstance(inst.name, inst.model_description, unzipped[inst.path])
+            members[inst.name] = _Member(fmu, inst.step_multiple)
+            fmu.instantiate(t.start, t.stop)
+            fmu.set_by_name({**inst.parameters, **inst.start})
+        return members
+
+    def _bind(self, members: dict[str, _Member]) -> tuple[list[Any], list[int], list[str]]:
+        """Give every observed variable a slot in one flat list and pre-bind the transfers."""
+        sc = self.scenario
+        observed: dict[str, list[str]] = {name: [] for name in members}
+        for conn in sc.connections:
+            if conn.src_var not in observed[conn.src]:
+                observed[conn.src].append(conn.src_var)
+        for inst_name, var in sc.record:
+            if var not in observed[inst_name]:
+                observed[inst_name].append(var)
+
+        slot_of: dict[tuple[str, str], int] = {}
+        next_slot = 0
+        for name, member in members.items():
+            fmu = member.fmu
+            groups: dict[str, list[str]] = {}
+            for var in observed[name]:
+                groups.setdefault(fmu.access_key(var), []).append(var)
+            for key, names in groups.items():
+                vrs = [fmu.variables[n].valueReference for n in names]
+                member.outputs.append((fmu.accessor(key, vrs, setter=False), next_slot, next_slot + len(names)))
+                for n in names:
+                    slot_of[(name, n)] = next_slot
+                    next_slot += 1
+
+        for name, member in members.items():
+            fmu = member.fmu
+            groups_in: dict[str, list] = {}
+            for conn in (c for c in sc.connections if c.dst == name):
+                vrs, slots = groups_in.setdefault(fmu.access_key(conn.dst_var), ([], []))
+                vrs.append(fmu.variables[conn.dst_var].valueReference)
+                slots.append(slot_of[(conn.src, conn.src_var)])
+            for key, (vrs, slots) in groups_in.items():
+                member.inputs.append((fmu.accessor(key, vrs, setter=True), slots))
+
+        values: list[Any] = [0.0] * next_slot
+        record_slots = [slot_of[r] for r in sc.record]
+        columns = [f"{i}.{v}" for i, v in sc.record]
+        return values, record_slots, columns
+
+    # -- metadata -------------------------------------------------------------
+    def _metadata(self, status: str) -> dict[str, Any]:
+        import fmpy
+        import numpy
+
+        sc, t = self.scenario, self.scenario.time
+        return {
+            "status": status,
+            "scenario": sc.name,
+            "scenario_file": str(sc.path),
+            "started_at": self.started_at,
+            "versions": {"v2i-cosim": __version__, "python": platform.python_version(),
+                         "fmpy": fmpy.__version__, "numpy": numpy.__version__, "platform": platform.platform()},
+            "mode": t.mode,
+            "ordering": t.ordering,
+            "step_s": t.step,
+            "start_s": t.start,
+            "stop_s": t.stop,
+            "realtime": {"target_rtf": t.rtf, "overrun_policy": t.overrun} if t.mode == "realtime" else None,
+            "ordering_note": ("jacobi: each connection delivers its source's output from the previous "
+                              "communication point (one source step of delay)" if t.ordering == "jacobi" else
+                              "gauss-seidel: instances step in file order; forward connections have no "
+                              "delay, backward ones one source step"),
+            "connection_delays": connection_delays(sc),
+            "instances": {
+                i.name: {"fmu": str(i.path), "fmi_version": i.model_description.fmiVersion,
+                         "model_identifier": i.model_description.coSimulation.modelIdentifier,
+                         "step_multiple": i.step_multiple}
+                for i in sc.instances.values()
+            },
+        }
+
+    # -- the loop -------------------------------------------------------------
+    def run(self) -> RunResult:
+        sc, t = self.scenario, self.scenario.time
+        if self.run_dir.exists() and any(self.run_dir.iterdir()):
+            raise FileExistsError(f"run folder {self.run_dir} exists and is not empty; "
+                                  "choose another --out (runs are never overwritten)")
+        self.started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        members: dict[str, _Member] = {}
+        recorder: RunRecorder | None = None
+        meta = self._metadata("running")
+        compute = array("d")
+        lags = array("d")
+        pacer = Pacer(t.step / t.rtf, t.overrun) if t.mode == "realtime" else None
+        steps_done, error, status = 0, None, "completed"
+        wall0 = time.perf_counter()
+        previous_handler = self._install_sigterm()
+        progress = None
+        try:
+            members = self._instantiate()
+            values, record_slots, columns = self._bind(members)
+            recorder = RunRecorder(self.run_dir, columns)
+            recorder.write_resolved(sc.resolved())
+            recorder.write_metadata(meta)
+            for m in members.values():
+                m.fmu.exit_initialization()
+            self._read_outputs(members.values(), values)
+            recorder.row(t.start, [values[s] for s in record_slots])
+
+            ordered = list(members.values())
+            gauss_seidel = t.ordering == "gauss-seidel"
+            progress = self._progress(t)
+            n, h, start = t.n_steps, t.step, t.start
+            wall0 = time.perf_counter()
+            if pacer:
+                pacer.start()
+            for k in range(n):
+                lag = pacer.wait(k) if pacer else None
+                t_k = start + k * h
+                c0 = time.perf_counter()
+                due = [m for m in ordered if k % m.multiple == 0]
+                if gauss_seidel:
+                    for m in due:
+                        self._set_inputs(m, values)
+                        m.fmu.do_step(t_k, m.multiple * h)
+                        self._read_outputs((m,), values)
+                else:
+                    for m in due:
+                        self._set_inputs(m, values)
+                    for m in due:
+                        m.fmu.do_step(t_k, m.multiple * h)
+                    self._read_outputs(due, values)
+                t_next = start + (k + 1) * h
+                recorder.row(t_next, [values[s] for s in record_slots])
+                steps_done = k + 1
+                c1 = time.perf_counter()
+                compute.append(c1 - c0)
+                miss = pacer.finished(k, t_k) if pacer else False
+                if pacer:
+                    lags.append(lag)
+                recorder.timing(k, t_k, c1 - c0, lag, miss)
+                if progress is not None and (k & 63) == 0:
+                    self._tick(progress, t_next - start, c1 - wall0)
+        except SimulationError as exc:
+            status, error = "failed", str(exc)
+            meta.update(failed_instance=exc.instance, failed_time_s=exc.time, failed_call=exc.call)
+        except DeadlineMissError as exc:
+            status, error = "failed", str(exc)
+        except (Interrupted, KeyboardInterrupt):
+            status, error = "interrupted", "interrupted by signal"
+        finally:
+            wall = time.perf_counter() - wall0
+            if progress is not None:
+                progress.close()
+            for m in members.values():
+                m.fmu.close()
+            for d in self._tmp_dirs:
+                shutil.rmtree(d, ignore_errors=True)
+            self._restore_sigterm(previous_handler)
+            sim_elapsed = steps_done * t.step
+            meta.update(status=status, error=error, steps_done=steps_done, sim_time_reached_s=t.start + sim_elapsed,
+                        wall_time_s=wall, rtf=self._rtf_stats(sim_elapsed, wall, compute, t.step))
+            meta["step_compute_s"] = percentiles(compute)
+            if pacer:
+                meta["realtime"].update(lag_s=percentiles(lags), deadline_misses=pacer.misses,
+                                        skipped_slots=pacer.skipped_slots)
+            if recorder is not None:
+                recorder.close()
+                meta["parquet"] = recorder.write_parquet() or "timeseries.parquet"
+                recorder.write_metadata(meta)
+            elif error is not None or status != "completed":
+                # failed before the run folder opened: still leave a trace of why
+                self.run_dir.mkdir(parents=True, exist_ok=True)
+                (self.run_dir / METADATA).write_text(json.dumps(meta, indent=2, default=str) + "\n")
+        return RunResult(self.run_dir, status, meta, error)
+
+    @staticmethod
+    def _set_inputs(member: _Member, values: list[Any]) -> None:
+        for setter, slots in member.inputs:
+            setter([values[s] for s in slots])
+
+    @staticmethod
+    def _read_outputs(members, values: list[Any]) -> None:
+        for m in members:
+            for getter, first, end in m.outputs:
+                values[first:end] = getter()
+
+    @staticmethod
+    def _rtf_stats(sim_elapsed: float, wall: float, compute: array, h: float) -> dict[str, Any]:
+        per_step = array("d", (h / c for c in compute if c > 0))
+        return {"achieved": sim_elapsed / wall if wall > 0 else None,
+                "per_step_compute": percentiles(per_step, (1, 50, 99))}
+
+    def _progress(self, t):
+        if self.quiet:
+            return None
+        from tqdm import tqdm
+
+        return tqdm(total=round(t.stop - t.start, 9), unit="s sim", disable=None, leave=False,
+                    bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s sim [{elapsed}<{remaining}{postfix}]")
+
+    @staticmethod
+    def _tick(progress, sim_elapsed: float, wall: float) -> None:
+        progress.n = round(sim_elapsed, 6)
+        progress.set_postfix_str(f"RTF {sim_elapsed / wall:.1f}" if wall > 0 else "", refresh=False)
+        progress.refresh()
+
+    @staticmethod
+    def _install_sigterm():
+        def handler(signum, frame):
+            raise Interrupted()
+        try:
+            return signal.signal(signal.SIGTERM, handler)
+        except ValueError:  # not the main thread
+            return None
+
+    @staticmethod
+    def _restore_sigterm(previous) -> None:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)

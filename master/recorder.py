@@ -1,0 +1,79 @@
+"""The run folder: resolved scenario, incremental time series, timing, metadata.
+
+Rows are flushed as they are written, so a crash or kill loses at most the
+step in progress; `metadata.json` is written at the start (status
+"running") and rewritten at the end with the outcome and statistics.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, Sequence
+
+TIMESERIES = "timeseries.csv"
+TIMING = "timing.csv"
+METADATA = "metadata.json"
+RESOLVED = "scenario.resolved.toml"
+
+
+class RunRecorder:
+    def __init__(self, run_dir: Path, columns: Sequence[str]):
+        self.run_dir = Path(run_dir)
+        self.columns = ["time", *columns]
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self._ts_file = open(self.run_dir / TIMESERIES, "w", newline="")
+        self._ts = csv.writer(self._ts_file)
+        self._ts.writerow(self.columns)
+        self._timing_file = open(self.run_dir / TIMING, "w", newline="")
+        self._timing = csv.writer(self._timing_file)
+        self._timing.writerow(["step", "time", "compute_s", "lag_s", "deadline_miss"])
+        self.rows = 0
+
+    def write_resolved(self, resolved: dict[str, Any]) -> None:
+        import tomli_w
+
+        (self.run_dir / RESOLVED).write_text(tomli_w.dumps(_toml_safe(resolved)))
+
+    def write_metadata(self, metadata: dict[str, Any]) -> None:
+        tmp = self.run_dir / (METADATA + ".tmp")
+        tmp.write_text(json.dumps(metadata, indent=2, default=str) + "\n")
+        os.replace(tmp, self.run_dir / METADATA)  # never a half-written file
+
+    def row(self, t: float, values: Sequence[Any]) -> None:
+        self._ts.writerow([repr(t), *values])
+        self._ts_file.flush()
+        self.rows += 1
+
+    def timing(self, step: int, t: float, compute_s: float, lag_s: float | None, miss: bool) -> None:
+        self._timing.writerow([step, repr(t), f"{compute_s:.9f}", "" if lag_s is None else f"{lag_s:.9f}", int(miss)])
+
+    def close(self) -> None:
+        for f in (self._ts_file, self._timing_file):
+            if not f.closed:
+                f.flush()
+                f.close()
+
+    def write_parquet(self) -> str | None:
+        """Parquet copy of the CSV when pyarrow is installed; returns the reason when skipped."""
+        try:
+            import pyarrow.csv as pacsv
+            import pyarrow.parquet as pq
+        except ImportError:
+            return "pyarrow not installed"
+        table = pacsv.read_csv(self.run_dir / TIMESERIES)
+        pq.write_table(table, self.run_dir / "timeseries.parquet")
+        return None
+
+
+def _toml_safe(value):
+    """TOML has no null and no NaN-free guarantee: drop None, keep the rest."""
+    if isinstance(value, dict):
+        return {k: _toml_safe(v) for k, v in value.items() if v is not None}
+    if isinstance(value, list):
+        return [_toml_safe(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    return value

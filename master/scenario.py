@@ -1,0 +1,368 @@
+"""Scenario files (TOML): load, resolve FMUs, and validate before anything runs.
+
+A scenario names FMU instances with their parameters and start values,
+connections `"a.out -> b.in"`, time settings and what to record. Every
+problem found is reported at once, each with its key and what was expected,
+so a bad file is fixed in one pass and never half-runs.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from master.errors import ScenarioError
+from master.fmu_variables import check_value, family
+
+MODES = ("lockstep", "realtime")
+ORDERINGS = ("jacobi", "gauss-seidel")
+OVERRUN_POLICIES = ("catch-up", "skip", "slip", "abort")
+_TOP_KEYS = ("scenario", "time", "fmus", "connections", "record")
+_TIME_KEYS = ("start", "stop", "step", "mode", "ordering", "rtf", "overrun")
+_INSTANCE_KEYS = ("fmu", "parameters", "start", "step_multiple")
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_CONNECTION = re.compile(r"^\s*([^.\s]+)\.(\S+)\s*->\s*([^.\s]+)\.(\S+)\s*$")
+
+
+@dataclass
+class TimeSettings:
+    start: float = 0.0
+    stop: float = 10.0
+    step: float = 0.01
+    mode: str = "lockstep"
+    ordering: str = "jacobi"
+    rtf: float = 1.0
+    overrun: str = "catch-up"
+
+    @property
+    def n_steps(self) -> int:
+        return round((self.stop - self.start) / self.step)
+
+
+@dataclass
+class Instance:
+    name: str
+    fmu: str  # as written in the file
+    path: Path  # resolved .fmu file
+    model_description: Any  # fmpy ModelDescription
+    parameters: dict[str, Any] = field(default_factory=dict)
+    start: dict[str, Any] = field(default_factory=dict)
+    step_multiple: int = 1
+
+    @property
+    def variables(self) -> dict[str, Any]:
+        return {v.name: v for v in self.model_description.modelVariables}
+
+
+@dataclass(frozen=True)
+class Connection:
+    src: str
+    src_var: str
+    dst: str
+    dst_var: str
+
+    def __str__(self) -> str:
+        return f"{self.src}.{self.src_var} -> {self.dst}.{self.dst_var}"
+
+
+@dataclass
+class Scenario:
+    path: Path
+    name: str
+    description: str
+    time: TimeSettings
+    instances: dict[str, Instance]
+    connections: list[Connection]
+    record: list[tuple[str, str]]  # (instance, variable)
+    raw: dict[str, Any]
+
+    def resolved(self) -> dict[str, Any]:
+        """The scenario with defaults filled in and FMU paths resolved, for the run folder."""
+        t = self.time
+        return {
+            "scenario": {"name": self.name, "description": self.description, "source": str(self.path)},
+            "time": {"start": t.start, "stop": t.stop, "step": t.step, "mode": t.mode,
+                     "ordering": t.ordering, "rtf": t.rtf, "overrun": t.overrun},
+            "fmus": {
+                i.name: {"fmu": str(i.path), "step_multiple": i.step_multiple,
+                         "parameters": dict(i.parameters), "start": dict(i.start)}
+                for i in self.instances.values()
+            },
+            "connections": [str(c) for c in self.connections],
+            "record": {"variables": [f"{i}.{v}" for i, v in self.record]},
+        }
+
+
+def fmu_search_dir() -> Path:
+    """Where built project FMUs live (`V2I_FMU_DIR`, default `build/fmus`)."""
+    return Path(os.environ.get("V2I_FMU_DIR", "build/fmus"))
+
+
+def resolve_fmu(spec: str, base_dir: Path) -> Path:
+    """An FMU file path, or a project FMU by model identifier (built on demand).
+
+    Raises FileNotFoundError with what was tried.
+    """
+    if spec.endswith(".fmu") or "/" in spec or os.sep in spec:
+        path = Path(spec).expanduser()
+        path = path if path.is_absolute() else base_dir / path
+        if not path.is_file():
+            raise FileNotFoundError(f"FMU file not found: {path}")
+        return path.resolve()
+    built = fmu_search_dir() / f"{spec}.fmu"
+    from fmus.builder import project_fmu_path
+
+    path = project_fmu_path(spec, fmu_search_dir())
+    if path is not None:
+        return path.resolve()
+    if built.is_file():
+        return built.resolve()
+    from fmus.builder import discover
+
+    known = ", ".join(s.model_identifier for s in discover())
+    raise FileNotFoundError(f"no FMU named {spec!r}: not a file, not a project FMU (project FMUs: {known})")
+
+
+def load_scenario(path: str | os.PathLike) -> Scenario:
+    """Parse and validate a scenario file; raises ScenarioError listing every problem."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ScenarioError(path, [f"cannot read file: {exc.strerror or exc}"]) from None
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(path, [f"not valid TOML: {exc}"]) from None
+    return _Validator(path, raw).validate()
+
+
+class _Validator:
+    def __init__(self, path: Path, raw: dict[str, Any]):
+        self.path, self.raw = path, raw
+        self.problems: list[str] = []
+
+    def problem(self, key: str, message: str) -> None:
+        self.problems.append(f"{key}: {message}")
+
+    def table(self, parent: dict, key: str, dotted: str) -> dict:
+        value = parent.get(key, {})
+        if not isinstance(value, dict):
+            self.problem(dotted, f"expected a table, got {type(value).__name__}")
+            return {}
+        return value
+
+    def unknown_keys(self, table: dict, allowed: tuple[str, ...], prefix: str) -> None:
+        for key in table:
+            if key not in allowed:
+                where = f"{prefix}.{key}" if prefix else key
+                self.problem(where, f"unknown key (expected one of: {', '.join(allowed)})")
+
+    # -- sections ----------------------------------------------------------
+    def validate(self) -> Scenario:
+        raw = self.raw
+        self.unknown_keys(raw, _TOP_KEYS, "")
+        meta = self.table(raw, "scenario", "scenario")
+        name = meta.get("name", self.path.stem)
+        description = meta.get("description", "")
+        for key, value in (("name", name), ("description", description)):
+            if not isinstance(value, str):
+                self.problem(f"scenario.{key}", f"expected a string, got {type(value).__name__}")
+        time = self.time_settings(self.table(raw, "time", "time"))
+        instances = self.instances(self.table(raw, "fmus", "fmus"), time)
+        connections = self.connections(raw.get("connections", []), instances)
+        record = self.record(self.table(raw, "record", "record"), instances)
+        if self.problems:
+            raise ScenarioError(self.path, self.problems)
+        return Scenario(self.path, str(name), str(description), time, instances, connections, record, raw)
+
+    def number(self, table: dict, key: str, dotted: str, default: float, positive: bool = False) -> float:
+        value = table.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            self.problem(dotted, f"expected a finite number, got {value!r}")
+            return default
+        if positive and value <= 0:
+            self.problem(dotted, f"must be > 0, got {value!r}")
+            return default
+        return float(value)
+
+    def choice(self, table: dict, key: str, dotted: str, choices: tuple[str, ...], default: str) -> str:
+        value = table.get(key, default)
+        if value not in choices:
+            self.problem(dotted, f"expected one of {', '.join(choices)}, got {value!r}")
+            return default
+        return value
+
+    def time_settings(self, t: dict) -> TimeSettings:
+        self.unknown_keys(t, _TIME_KEYS, "time")
+        d = TimeSettings()
+        s = TimeSettings(
+            start=self.number(t, "start", "time.start", d.start),
+            stop=self.number(t, "stop", "time.stop", d.stop),
+            step=self.number(t, "step", "time.step", d.step, positive=True),
+            mode=self.choice(t, "mode", "time.mode", MODES, d.mode),
+            ordering=self.choice(t, "ordering", "time.ordering", ORDERINGS, d.ordering),
+            rtf=self.number(t, "rtf", "time.rtf", d.rtf, positive=True),
+            overrun=self.choice(t, "overrun", "time.overrun", OVERRUN_POLICIES, d.overrun),
+        )
+        if s.stop <= s.start:
+            self.problem("time.stop", f"must be greater than time.start ({s.start}), got {s.stop}")
+        elif abs((s.stop - s.start) / s.step - s.n_steps) > 1e-6:
+            self.problem("time.stop", f"stop - start = {s.stop - s.start} s is not a whole number of "
+                                      f"{s.step} s steps")
+        return s
+
+    def instances(self, fmus: dict, time: TimeSettings) -> dict[str, Instance]:
+        from fmpy import read_model_description
+
+        if not fmus:
+            self.problem("fmus", "no FMU instances: add at least one [fmus.NAME] table")
+        result = {}
+        for name, spec in fmus.items():
+            key = f"fmus.{name}"
+            if not _NAME.match(name):
+                self.problem(key, "instance names must be identifiers (letters, digits, _; no dots)")
+                continue
+            if not isinstance(spec, dict):
+                self.problem(key, f"expected a table, got {type(spec).__name__}")
+                continue
+            self.unknown_keys(spec, _INSTANCE_KEYS, key)
+            fmu = spec.get("fmu")
+            if not isinstance(fmu, str) or not fmu:
+                self.problem(f"{key}.fmu", "required: an FMU file path or a project FMU name (e.g. VehicleDynamics)")
+                continue
+            try:
+                fmu_path = resolve_fmu(fmu, self.path.parent)
+                md = read_model_description(str(fmu_path), validate=False)
+            except Exception as exc:  # missing file, bad zip, bad XML: all the user's to fix
+                self.problem(f"{key}.fmu", f"{exc}")
+                continue
+            if md.coSimulation is None:
+                self.problem(f"{key}.fmu", f"{fmu_path.name} has no co-simulation interface (model exchange only)")
+                continue
+            multiple = spec.get("step_multiple", 1)
+            if isinstance(multiple, bool) or not isinstance(multiple, int) or multiple < 1:
+                self.problem(f"{key}.step_multiple", f"expected an integer >= 1, got {multiple!r}")
+                multiple = 1
+            elif time.n_steps % multiple:
+                self.problem(f"{key}.step_multiple", f"{multiple} does not divide the run's {time.n_steps} steps")
+            inst = Instance(name, fmu, fmu_path, md, step_multiple=multiple)
+            inst.parameters = self.values(inst, self.table(spec, "parameters", f"{key}.parameters"),
+                                          f"{key}.parameters", parameters=True)
+            inst.start = self.values(inst, self.table(spec, "start", f"{key}.start"), f"{key}.start", parameters=False)
+            result[name] = inst
+        return result
+
+    def values(self, inst: Instance, table: dict, prefix: str, parameters: bool) -> dict[str, Any]:
+        variables, accepted = inst.variables, {}
+        for var_name, value in table.items():
+            key = f"{prefix}.{var_name}"
+            var = variables.get(var_name)
+            if var is None:
+                self.problem(key, f"unknown variable {var_name!r} of {inst.path.name} ({_suggest(var_name, variables)})")
+                continue
+            if parameters and var.causality != "parameter":
+                self.problem(key, f"{var_name!r} has causality {var.causality}, not parameter "
+                                  f"(set inputs under {prefix.rsplit('.', 1)[0]}.start)")
+                continue
+            if not parameters:
+                if var.causality == "parameter":
+                    self.problem(key, f"{var_name!r} is a parameter: set it under {prefix.rsplit('.', 1)[0]}.parameters")
+                    continue
+                if var.causality != "input" and var.initial not in ("exact", "approx"):
+                    self.problem(key, f"{var_name!r} has causality {var.causality} and no settable start value")
+                    continue
+            if var.variability == "constant":
+                self.problem(key, f"{var_name!r} is a constant and cannot be set")
+                continue
+            reason = check_value(var.type, value)
+            if reason:
+                self.problem(key, reason)
+                continue
+            accepted[var_name] = value
+        return accepted
+
+    def connections(self, items: Any, instances: dict[str, Instance]) -> list[Connection]:
+        if not isinstance(items, list):
+            self.problem("connections", f"expected a list of \"a.out -> b.in\" strings, got {type(items).__name__}")
+            return []
+        result, targets = [], {}
+        for i, text in enumerate(items):
+            key = f"connections[{i}]"
+            match = _CONNECTION.match(text) if isinstance(text, str) else None
+            if not match:
+                self.problem(key, f"expected \"instance.output -> instance.input\", got {text!r}")
+                continue
+            conn = Connection(*match.groups())
+            src = self.endpoint(key, conn.src, conn.src_var, instances, "output")
+            dst = self.endpoint(key, conn.dst, conn.dst_var, instances, "input")
+            if src is None or dst is None:
+                continue
+            if family(src.type) != family(dst.type):
+                self.problem(key, f"type mismatch: {conn.src}.{conn.src_var} is {src.type}, "
+                                  f"{conn.dst}.{conn.dst_var} is {dst.type}")
+                continue
+            target = (conn.dst, conn.dst_var)
+            if target in targets:
+                self.problem(key, f"{conn.dst}.{conn.dst_var} is already driven by {targets[target]}")
+                continue
+            targets[target] = str(conn)
+            result.append(conn)
+        return result
+
+    def endpoint(self, key: str, inst_name: str, var_name: str, instances: dict[str, Instance], causality: str):
+        inst = instances.get(inst_name)
+        if inst is None:
+            self.problem(key, f"unknown instance {inst_name!r} (instances: {', '.join(instances) or 'none'})")
+            return None
+        var = inst.variables.get(var_name)
+        if var is None:
+            self.problem(key, f"unknown variable {inst_name}.{var_name} ({_suggest(var_name, inst.variables)})")
+            return None
+        if var.causality != causality:
+            side = "source" if causality == "output" else "target"
+            self.problem(key, f"causality mismatch: {inst_name}.{var_name} is {var.causality}, "
+                              f"a connection {side} must be an {causality}")
+            return None
+        return var
+
+    def record(self, table: dict, instances: dict[str, Instance]) -> list[tuple[str, str]]:
+        self.unknown_keys(table, ("variables",), "record")
+        patterns = table.get("variables", [f"{name}.*" for name in instances])
+        if not isinstance(patterns, list) or not all(isinstance(p, str) for p in patterns):
+            self.problem("record.variables", "expected a list of \"instance.variable\" or \"instance.*\" strings")
+            return []
+        chosen: list[tuple[str, str]] = []
+        for i, pattern in enumerate(patterns):
+            key = f"record.variables[{i}]"
+            inst_name, _, var_name = pattern.partition(".")
+            inst = instances.get(inst_name)
+            if inst is None:
+                self.problem(key, f"unknown instance {inst_name!r} in {pattern!r}")
+                continue
+            if var_name == "*":
+                names = [v.name for v in inst.model_description.modelVariables if v.causality == "output"]
+            elif var_name in inst.variables:
+                names = [var_name]
+            else:
+                self.problem(key, f"unknown variable {pattern!r} ({_suggest(var_name, inst.variables)})")
+                continue
+            for n in names:
+                if family(inst.variables[n].type) == "string":
+                    self.problem(key, f"{inst_name}.{n} is a String; only numeric variables are recorded")
+                elif (inst_name, n) not in chosen:
+                    chosen.append((inst_name, n))
+        return chosen
+
+
+def _suggest(name: str, variables: dict) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(name, list(variables), n=3)
+    if close:
+        return "did you mean " + " or ".join(repr(c) for c in close) + "?"
+    return f"{len(variables)} variables; see `v2i info`"
