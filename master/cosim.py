@@ -93,21 +93,24 @@ class CoSimulation:
         self._tmp_dirs: list[str] = []
 
     # -- set-up -------------------------------------------------------------
-    def _instantiate(self) -> dict[str, _Member]:
+    def _instantiate(self, members: dict[str, _Member]) -> None:
+        """Extract and instantiate every FMU into `members` (filled as it goes, so a
+        failure part-way still lets the caller free the instances made so far)."""
         from fmpy import extract
 
         unzipped: dict[Path, str] = {}
         t = self.scenario.time
-        members = {}
         for inst in self.scenario.instances.values():
             if inst.path not in unzipped:
-                unzipped[inst.path] = extract(str(inst.path))
+                try:
+                    unzipped[inst.path] = extract(str(inst.path))
+                except Exception as exc:  # file gone or corrupt since validation
+                    raise SimulationError(inst.name, t.start, "extract", f"{inst.path}: {exc}") from exc
                 self._tmp_dirs.append(unzipped[inst.path])
             fmu = FmuInstance(inst.name, inst.model_description, unzipped[inst.path])
             members[inst.name] = _Member(fmu, inst.step_multiple)
             fmu.instantiate(t.start, t.stop)
             fmu.set_by_name({**inst.parameters, **inst.start})
-        return members
 
     def _bind(self, members: dict[str, _Member]) -> tuple[list[Any], list[int], list[str]]:
         """Give every observed variable a slot in one flat list and pre-bind the transfers."""
@@ -199,7 +202,7 @@ class CoSimulation:
         previous_handler = self._install_sigterm()
         progress = None
         try:
-            members = self._instantiate()
+            self._instantiate(members)
             values, record_slots, columns = self._bind(members)
             recorder = RunRecorder(self.run_dir, columns)
             recorder.write_resolved(sc.resolved())

@@ -34,6 +34,7 @@ class FmuInstance:
         self.log: deque[str] = deque(maxlen=20)
         self.time = 0.0
         self._slave = None
+        self.failed: str | None = None  # "error" / "fatal" once a call failed
         self._keepalive = None  # ctypes callbacks must outlive the instance
 
     # -- access ---------------------------------------------------------------
@@ -137,10 +138,16 @@ class FmuInstance:
             self.fail("doStep", exc)
 
     def close(self) -> None:
-        """Terminate and free, ignoring errors: used on every exit path."""
+        """Terminate and free, ignoring errors: used on every exit path.
+
+        After an error status FMI allows only freeing the instance; after a
+        fatal one the instance is corrupt and pythonfmu 0.7.0 even crashes in
+        fmi2FreeInstance, so it is left to the process exit (a small leak).
+        """
         if self._slave is None:
             return
-        for call in ("terminate", "freeInstance"):
+        calls = {None: ("terminate", "freeInstance"), "error": ("freeInstance",), "fatal": ()}[self.failed]
+        for call in calls:
             try:
                 getattr(self._slave, call)()
             except Exception:
@@ -148,6 +155,8 @@ class FmuInstance:
         self._slave = None
 
     def fail(self, call: str, exc: BaseException):
+        status = getattr(exc, "status", None)  # fmpy's FMICallException carries the FMI status
+        self.failed = "error" if status == 3 else "fatal"
         messages = [m for m in self.log if not m.startswith("[OK]")] or list(self.log)
         detail = str(exc)
         if messages:

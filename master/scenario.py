@@ -160,7 +160,11 @@ class _Validator:
         for key in table:
             if key not in allowed:
                 where = f"{prefix}.{key}" if prefix else key
-                self.problem(where, f"unknown key (expected one of: {', '.join(allowed)})")
+                hint = ""
+                if prefix and key in _TOP_KEYS:
+                    hint = (f"; in TOML a key after a [table] header belongs to that table: "
+                            f"move `{key} = ...` above the first [table]")
+                self.problem(where, f"unknown key (expected one of: {', '.join(allowed)}){hint}")
 
     # -- sections ----------------------------------------------------------
     def validate(self) -> Scenario:

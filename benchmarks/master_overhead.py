@@ -1,0 +1,399 @@
+"""Benchmark: what the co-simulation master costs per FMU step, and realtime jitter.
+
+    python benchmarks/master_overhead.py [--steps 10000] [--repeats 3]
+        [--realtime-seconds 30] [--json PATH] [--quick] [--profile]
+
+1. The master (`master.cosim.CoSimulation`) steps N = 1, 10, 50 unconnected
+   VehicleDynamics instances, lockstep, h = 0.01 s, recording every output
+   (the default `[record]`). Figure: microseconds per FMU step =
+   loop wall time / (steps * N). The loop time is the run's
+   `metadata.json` `wall_time_s` (the stepping loop only); the time around
+   `CoSimulation.run()` (instantiate, bind, loop, close, parquet) is shown too.
+2. Peers in the same process and repeat: `fmpy.simulate_fmu` stepping one
+   instance for the same number of steps and recording all outputs (whole
+   call, and its loop alone from the first to the last `step_finished`
+   callback), and a bare `FMU2Slave` loop (`doStep` + `getReal` of the 7
+   outputs, no recording), the cheapest loop Python can drive over this FMU.
+3. A realtime run (one instance, rtf 1, h = 0.01 s): start lag p50/p99/max
+   and deadline misses from `metadata.json`.
+
+The machine is shared and noisy, so each figure is the median over repeats
+(min shown too) and comparisons are ratios taken within the same repeat set.
+All figures go to a JSON file (default benchmarks/results/master_overhead.json).
+`--quick` shrinks everything to a smoke test of a few seconds.
+"""
+from __future__ import annotations
+
+import argparse
+import cProfile
+import json
+import os
+import platform
+import pstats
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:  # run as a plain script from anywhere
+    sys.path.insert(0, str(ROOT))
+
+STEP = 0.01
+MASTER_NS = (1, 10, 50)
+GOAL_RATIO = 1.5
+GOAL_P99_MS = 1.0
+OUTPUTS = ("x", "y", "yaw", "v", "a", "steer", "yaw_rate")
+DEFAULT_JSON = ROOT / "benchmarks" / "results" / "master_overhead.json"
+
+
+# -- helpers ----------------------------------------------------------------------
+def default_fmu() -> Path:
+    env = os.environ.get("V2I_FMU_DIR")
+    return (Path(env) if env else ROOT / "build" / "fmus") / "VehicleDynamics.fmu"
+
+
+def scenario_toml(fmu: Path, n: int, steps: int, mode: str = "lockstep", rtf: float = 1.0) -> str:
+    lines = [
+        "[scenario]",
+        f'name = "bench_{mode}_{n}"',
+        'description = "benchmarks/master_overhead.py"',
+        "",
+        "[time]",
+        "start = 0.0",
+        f"stop = {steps * STEP!r}",
+        f"step = {STEP!r}",
+        f'mode = "{mode}"',
+        'ordering = "jacobi"',
+    ]
+    if mode == "realtime":
+        lines.append(f"rtf = {float(rtf)!r}")
+    for i in range(n):
+        # no [record] table: every output of every instance is recorded (the default)
+        lines += ["", f"[fmus.v{i}]", f"fmu = {json.dumps(str(fmu))}"]
+    return "\n".join(lines) + "\n"
+
+
+def load(fmu: Path, n: int, steps: int, work: Path, mode: str = "lockstep"):
+    from master.scenario import load_scenario
+
+    path = work / f"bench_{mode}_{n}.toml"
+    path.write_text(scenario_toml(fmu, n, steps, mode))
+    return load_scenario(path)
+
+
+def run_master(fmu: Path, n: int, steps: int, work: Path, tag: str, mode: str = "lockstep") -> dict:
+    """One master run; returns loop and whole-run times (s) and the run metadata."""
+    from master.cosim import CoSimulation
+
+    scenario = load(fmu, n, steps, work, mode)
+    run_dir = work / f"run-{mode}-{n}-{tag}"
+    t0 = time.perf_counter()
+    result = CoSimulation(scenario, run_dir, quiet=True).run()
+    whole = time.perf_counter() - t0
+    if result.status != "completed":
+        raise RuntimeError(f"master run N={n} ended {result.status}: {result.error}")
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    if meta.get("steps_done") != steps:
+        raise RuntimeError(f"master run N={n}: {meta.get('steps_done')} steps done, expected {steps}")
+    shutil.rmtree(run_dir, ignore_errors=True)  # 50 instances x 10k steps is tens of MB of CSV
+    return {"loop_s": float(meta["wall_time_s"]), "whole_s": whole, "meta": meta}
+
+
+def run_simulate_fmu(fmu: Path, steps: int) -> dict:
+    import fmpy
+
+    stamps: list[float] = []
+
+    def step_finished(t, recorder):
+        stamps.append(time.perf_counter())
+        return True
+
+    t0 = time.perf_counter()
+    result = fmpy.simulate_fmu(str(fmu), step_size=STEP, output_interval=STEP, stop_time=steps * STEP,
+                               step_finished=step_finished)
+    whole = time.perf_counter() - t0
+    if len(result) != steps + 1 or len(stamps) != steps:
+        raise RuntimeError(f"simulate_fmu: {len(result)} rows / {len(stamps)} steps, expected {steps + 1} / {steps}")
+    # first to last callback spans steps-1 steps: scale to all of them
+    loop = (stamps[-1] - stamps[0]) * steps / (steps - 1) if steps > 1 else None
+    return {"loop_s": loop, "whole_s": whole}
+
+
+def run_bare(fmu: Path, steps: int) -> dict:
+    """The floor: doStep + getReal of the outputs, nothing recorded."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(fmu), validate=False)
+    vrs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    unzip = extract(str(fmu))
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=unzip, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="bare")
+    try:
+        slave.instantiate()
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        slave.exitInitializationMode()
+        do_step, get_real = slave.doStep, slave.getReal
+        last = None
+        t0 = time.perf_counter()
+        for k in range(steps):
+            do_step(k * STEP, STEP)
+            last = get_real(vrs)
+        loop = time.perf_counter() - t0
+        slave.terminate()
+        slave.freeInstance()
+    finally:
+        shutil.rmtree(unzip, ignore_errors=True)
+    if last is None or len(last) != len(vrs):
+        raise RuntimeError("bare loop read no outputs")
+    return {"loop_s": loop, "whole_s": None}
+
+
+def summary(values: list[float]) -> dict:
+    return {"median": statistics.median(values), "min": min(values), "max": max(values), "all": values}
+
+
+def machine_info() -> dict:
+    import fmpy
+
+    info = {
+        "platform": platform.platform(),
+        "cpu_count": os.cpu_count(),
+        "python": sys.version.split()[0],
+        "fmpy": fmpy.__version__,
+        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "processor": platform.processor() or platform.machine(),
+    }
+    try:
+        info["loadavg_start"] = list(os.getloadavg())
+    except OSError:
+        pass
+    return info
+
+
+def _category(func: tuple) -> str | None:
+    filename = func[0].replace("\\", "/")
+    if filename == "~":  # a builtin: attributed to its callers below
+        return None
+    if "/resources/" in filename:
+        return "FMU model code (pythonfmu slave, in-process)"
+    if "/fmpy/" in filename:
+        return "fmpy FMU2Slave wrappers (ctypes calls)"
+    if filename.endswith("master/recorder.py"):
+        return "master recorder (csv rows, flush, timing.csv, parquet)"
+    if "/master/" in filename:
+        return "master loop + fmu_runtime wrappers"
+    return "other (stdlib, numpy, pyarrow, csv module calls not from master)"
+
+
+def profile_master(fmu: Path, n: int, steps: int, work: Path, top: int = 15) -> tuple[str, dict]:
+    """cProfile one master run: own time by component and the master's top functions."""
+    prof = cProfile.Profile()
+    prof.enable()
+    res = run_master(fmu, n, steps, work, "profile")
+    prof.disable()
+    stats = pstats.Stats(prof).stats  # func -> (cc, nc, tottime, cumtime, callers)
+    total = sum(v[2] for v in stats.values()) or 1.0
+    by_cat: dict[str, float] = {}
+    for func, (_cc, _nc, tt, _ct, callers) in stats.items():
+        cat = _category(func)
+        if cat is not None:
+            by_cat[cat] = by_cat.get(cat, 0.0) + tt
+            continue
+        # builtins (isinstance, writerow, ctypes calls, ...): split by who called them
+        for caller, entry in callers.items():
+            ccat = _category(caller) or "other (stdlib, numpy, pyarrow, csv module calls not from master)"
+            by_cat[ccat] = by_cat.get(ccat, 0.0) + entry[2]
+    lines = [f"profiled run: loop {res['loop_s']:.3f} s, whole {res['whole_s']:.3f} s "
+             f"(cProfile inflates call-heavy Python code, the FMU model most)",
+             "own time by component (builtins attributed to their callers):"]
+    for cat, tt in sorted(by_cat.items(), key=lambda kv: -kv[1]):
+        lines.append(f"  {tt / total * 100:5.1f} %  {tt:7.3f} s  {cat}")
+    master_funcs = sorted(((f, v) for f, v in stats.items() if "/master/" in f[0].replace("\\", "/")),
+                          key=lambda fv: -fv[1][2])[:top]
+    lines.append(f"master functions by own time (share of all own time), cumulative time incl. callees:")
+    lines.append(f"  {'own %':>6} {'own s':>7} {'cum s':>7} {'calls':>8}  function")
+    rows = []
+    for (filename, lineno, name), (_cc, nc, tt, ct, _callers) in master_funcs:
+        where = f"{Path(filename).parent.name}/{Path(filename).name}:{lineno}({name})"
+        lines.append(f"  {tt / total * 100:6.2f} {tt:7.3f} {ct:7.3f} {nc:8d}  {where}")
+        rows.append({"function": where, "calls": nc, "own_s": tt, "cum_s": ct, "own_share": tt / total})
+    return "\n".join(lines), {"instances": n, "steps": steps, "total_own_s": total,
+                               "by_component_s": by_cat, "master_functions": rows}
+
+
+# -- main ---------------------------------------------------------------------------
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--steps", type=int, default=10000, help="steps per run (default 10000)")
+    ap.add_argument("--repeats", type=int, default=3, help="repeats of every case (default 3)")
+    ap.add_argument("--realtime-seconds", type=float, default=30.0,
+                    help="simulated (= wall) seconds of the realtime run (default 30; 0 skips it)")
+    ap.add_argument("--json", type=Path, default=DEFAULT_JSON, help=f"result file (default {DEFAULT_JSON.relative_to(ROOT)})")
+    ap.add_argument("--fmu", type=Path, default=None, help="VehicleDynamics.fmu (default build/fmus/, or $V2I_FMU_DIR)")
+    ap.add_argument("--quick", action="store_true", help="smoke test: 1000 steps, 1 repeat, 3 s realtime")
+    ap.add_argument("--profile", action="store_true", help="also cProfile one master run with N=10 and print the top functions")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.steps, args.repeats, args.realtime_seconds = 1000, 1, 3.0
+    if args.steps < 2 or args.repeats < 1:
+        ap.error("--steps must be >= 2 and --repeats >= 1")
+    rt_steps = round(args.realtime_seconds / STEP)
+
+    fmu = (args.fmu or default_fmu()).resolve()
+    if not fmu.is_file():
+        print(f"FMU not found: {fmu}\nbuild it first: v2i build-fmus", file=sys.stderr)
+        return 2
+
+    info = machine_info()
+    print(f"master overhead benchmark: {args.steps} steps of {STEP} s, {args.repeats} repeat(s), FMU {fmu}")
+    print(f"machine: {info['platform']}, {info['cpu_count']} CPUs, Python {info['python']}, fmpy {info['fmpy']}, "
+          f"load avg {info.get('loadavg_start', ['?'])[0]}")
+
+    work = Path(tempfile.mkdtemp(prefix="v2i-bench-"))
+    rows: dict[str, dict] = {}  # case -> {"loop": [...], "whole": [...], "n": N}
+
+    def add(case: str, n: int, res: dict) -> None:
+        row = rows.setdefault(case, {"n": n, "loop": [], "whole": []})
+        row["loop"].append(res["loop_s"])
+        if res.get("whole_s") is not None:
+            row["whole"].append(res["whole_s"])
+
+    try:
+        # warm-up: first import/load of fmpy, the FMU's embedded interpreter, numpy, pyarrow
+        run_master(fmu, 1, min(args.steps, 200), work, "warmup")
+        run_simulate_fmu(fmu, min(args.steps, 200))
+
+        for r in range(args.repeats):
+            # interleave the cases so that drifting load hits all of them alike
+            add("fmpy.simulate_fmu", 1, run_simulate_fmu(fmu, args.steps))
+            add("bare FMU2Slave loop", 1, run_bare(fmu, args.steps))
+            for n in MASTER_NS:
+                add(f"master N={n}", n, run_master(fmu, n, args.steps, work, str(r)))
+            print(f"  repeat {r + 1}/{args.repeats} done", flush=True)
+
+        realtime = None
+        if rt_steps > 0:
+            print(f"  realtime run: {rt_steps * STEP:g} s ...", flush=True)
+            meta = run_master(fmu, 1, rt_steps, work, "rt", mode="realtime")["meta"]
+            rt = meta["realtime"]
+            lag = rt["lag_s"]
+            realtime = {
+                "sim_seconds": rt_steps * STEP, "step_s": STEP, "target_rtf": rt.get("target_rtf"),
+                "overrun_policy": rt.get("overrun_policy"),
+                "lag_ms": {k: (None if lag.get(k) is None else lag[k] * 1e3) for k in ("p50", "p99", "max", "mean")},
+                "lag_samples": lag.get("n"),
+                "deadline_misses": rt.get("deadline_misses"),
+                "skipped_slots": rt.get("skipped_slots"),
+                "step_compute_ms": {k: (v * 1e3 if isinstance(v, float) else v)
+                                    for k, v in meta.get("step_compute_s", {}).items() if k != "n"},
+                "achieved_rtf": meta.get("rtf", {}).get("achieved"),
+            }
+
+        profile_text, profile_data = (profile_master(fmu, 10, args.steps, work) if args.profile
+                                      else (None, None))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+    # -- figures --------------------------------------------------------------------
+    def per_step_us(seconds: list[float], n: int) -> list[float]:
+        return [s / (args.steps * n) * 1e6 for s in seconds]
+
+    cases = {}
+    for case, row in rows.items():
+        cases[case] = {
+            "instances": row["n"],
+            "loop_us_per_fmu_step": summary(per_step_us(row["loop"], row["n"])),
+            "whole_us_per_fmu_step": summary(per_step_us(row["whole"], row["n"])) if row["whole"] else None,
+            "loop_s": row["loop"],
+            "whole_s": row["whole"] or None,
+        }
+    peer = cases["fmpy.simulate_fmu"]
+    peer_loop = peer["loop_us_per_fmu_step"]["median"]
+    peer_whole = peer["whole_us_per_fmu_step"]["median"]
+    for c in cases.values():
+        c["ratio_loop_to_simulate_fmu_loop"] = c["loop_us_per_fmu_step"]["median"] / peer_loop
+        c["ratio_whole_to_simulate_fmu_whole"] = (c["whole_us_per_fmu_step"]["median"] / peer_whole
+                                                  if c["whole_us_per_fmu_step"] else None)
+
+    order = [f"master N={n}" for n in MASTER_NS] + ["fmpy.simulate_fmu", "bare FMU2Slave loop"]
+    print()
+    print(f"us per FMU step, {args.steps} steps, median (min) over {args.repeats} repeat(s); "
+          "ratio = median / fmpy.simulate_fmu median")
+    print("loop = stepping loop only (master: metadata.json wall_time_s; simulate_fmu: first..last "
+          "step_finished callback, scaled to all steps; bare: perf_counter around the loop)")
+    print("whole = wall time around CoSimulation.run() / fmpy.simulate_fmu() incl. extract, instantiate, files")
+    head = f"{'case':<22} {'loop med':>9} {'loop min':>9} {'ratio':>6} | {'whole med':>9} {'whole min':>9} {'ratio':>6}"
+    print(head)
+    print("-" * len(head))
+    for case in order:
+        c = cases[case]
+        lp = c["loop_us_per_fmu_step"]
+        wh = c["whole_us_per_fmu_step"]
+        whole_txt = (f"{wh['median']:9.2f} {wh['min']:9.2f} {c['ratio_whole_to_simulate_fmu_whole']:6.2f}"
+                     if wh else f"{'-':>9} {'-':>9} {'-':>6}")
+        print(f"{case:<22} {lp['median']:9.2f} {lp['min']:9.2f} {c['ratio_loop_to_simulate_fmu_loop']:6.2f} | {whole_txt}")
+
+    # what each loop adds on top of the floor (doStep + getReal), per FMU step
+    floor = cases["bare FMU2Slave loop"]["loop_us_per_fmu_step"]["median"]
+    print()
+    print("added over the bare loop (median - bare median), us per FMU step:")
+    for case in order[:-1]:
+        c = cases[case]
+        c["added_over_bare_us_per_fmu_step"] = c["loop_us_per_fmu_step"]["median"] - floor
+        print(f"  {case:<20} {c['added_over_bare_us_per_fmu_step']:+8.2f}")
+
+    goal = {}
+    print()
+    print(f"goal: master per-FMU-step <= {GOAL_RATIO} x fmpy.simulate_fmu (loop vs loop)")
+    for n in MASTER_NS:
+        ratio = cases[f"master N={n}"]["ratio_loop_to_simulate_fmu_loop"]
+        ok = ratio <= GOAL_RATIO
+        goal[f"N={n}"] = {"ratio": ratio, "pass": ok}
+        print(f"  N={n:<3} {ratio:5.2f} x  {'PASS' if ok else 'FAIL'}")
+
+    if realtime:
+        lag = realtime["lag_ms"]
+        ok = lag["p99"] is not None and lag["p99"] <= GOAL_P99_MS and realtime["deadline_misses"] == 0
+        realtime["goal"] = {"p99_ms_max": GOAL_P99_MS, "deadline_misses": 0, "pass": ok}
+        print()
+        print(f"realtime: 1 instance, rtf {realtime['target_rtf']}, step {STEP * 1e3:g} ms, "
+              f"{realtime['sim_seconds']:g} s ({realtime['lag_samples']} steps)")
+        print(f"  start lag ms: p50 {lag['p50']:.4f}  p99 {lag['p99']:.4f}  max {lag['max']:.4f}   "
+              f"deadline misses {realtime['deadline_misses']}  (achieved RTF {realtime['achieved_rtf']:.4f})")
+        print(f"goal: p99 <= {GOAL_P99_MS:g} ms, no deadline misses on an idle machine: {'PASS' if ok else 'FAIL'}")
+
+    if profile_text:
+        print()
+        print(f"cProfile, master N=10, {args.steps} steps:")
+        print(profile_text)
+
+    try:
+        info["loadavg_end"] = list(os.getloadavg())
+    except OSError:
+        pass
+    report = {
+        "benchmark": "master_overhead",
+        "machine": info,
+        "settings": {"steps": args.steps, "repeats": args.repeats, "step_s": STEP, "fmu": str(fmu),
+                     "realtime_seconds": rt_steps * STEP, "quick": args.quick},
+        "units": "microseconds per FMU step (wall time / (steps * instances))",
+        "cases": cases,
+        "goal_master_vs_simulate_fmu": {"max_ratio": GOAL_RATIO, **goal},
+        "realtime": realtime,
+        "profile_master_n10": profile_data,
+    }
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"\nwrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
