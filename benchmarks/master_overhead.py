@@ -188,7 +188,7 @@ def _category(func: tuple) -> str | None:
         return "master recorder (csv rows, flush, timing.csv, parquet)"
     if "/master/" in filename:
         return "master loop + fmu_runtime wrappers"
-    return "other (stdlib, numpy, pyarrow, csv module calls not from master)"
+    return None  # stdlib, numpy, pyarrow: attributed to whoever called them
 
 
 def profile_master(fmu: Path, n: int, steps: int, work: Path, top: int = 15) -> tuple[str, dict]:
@@ -199,19 +199,34 @@ def profile_master(fmu: Path, n: int, steps: int, work: Path, top: int = 15) -> 
     prof.disable()
     stats = pstats.Stats(prof).stats  # func -> (cc, nc, tottime, cumtime, callers)
     total = sum(v[2] for v in stats.values()) or 1.0
-    by_cat: dict[str, float] = {}
-    for func, (_cc, _nc, tt, _ct, callers) in stats.items():
+    other = "other (not reached from the FMU, fmpy or master code)"
+    memo: dict[tuple, dict[str, float]] = {}
+
+    def shares(func: tuple, seen: frozenset = frozenset()) -> dict[str, float]:
+        """Category fractions of func's own time: its file's, or else its callers' (builtins, stdlib)."""
+        if func in memo:
+            return memo[func]
         cat = _category(func)
         if cat is not None:
-            by_cat[cat] = by_cat.get(cat, 0.0) + tt
-            continue
-        # builtins (isinstance, writerow, ctypes calls, ...): split by who called them
+            return {cat: 1.0}
+        callers = stats[func][4] if func in stats else {}
+        weight = sum(e[2] for e in callers.values())
+        if not callers or weight <= 0 or func in seen:
+            return {other: 1.0}
+        out: dict[str, float] = {}
         for caller, entry in callers.items():
-            ccat = _category(caller) or "other (stdlib, numpy, pyarrow, csv module calls not from master)"
-            by_cat[ccat] = by_cat.get(ccat, 0.0) + entry[2]
+            for c, frac in shares(caller, seen | {func}).items():
+                out[c] = out.get(c, 0.0) + frac * entry[2] / weight
+        memo[func] = out
+        return out
+
+    by_cat: dict[str, float] = {}
+    for func, (_cc, _nc, tt, _ct, _callers) in stats.items():
+        for cat, frac in shares(func).items():
+            by_cat[cat] = by_cat.get(cat, 0.0) + tt * frac
     lines = [f"profiled run: loop {res['loop_s']:.3f} s, whole {res['whole_s']:.3f} s "
              f"(cProfile inflates call-heavy Python code, the FMU model most)",
-             "own time by component (builtins attributed to their callers):"]
+             "own time by component (builtins and library code attributed to their callers):"]
     for cat, tt in sorted(by_cat.items(), key=lambda kv: -kv[1]):
         lines.append(f"  {tt / total * 100:5.1f} %  {tt:7.3f} s  {cat}")
     master_funcs = sorted(((f, v) for f, v in stats.items() if "/master/" in f[0].replace("\\", "/")),
