@@ -171,6 +171,7 @@ class _Validator:
         raw = self.raw
         self.unknown_keys(raw, _TOP_KEYS, "")
         meta = self.table(raw, "scenario", "scenario")
+        self.unknown_keys(meta, ("name", "description", "source"), "scenario")
         name = meta.get("name", self.path.stem)
         description = meta.get("description", "")
         for key, value in (("name", name), ("description", description)):
@@ -221,7 +222,9 @@ class _Validator:
         return s
 
     def instances(self, fmus: dict, time: TimeSettings) -> dict[str, Instance]:
-        from fmpy import read_model_description
+        from fmpy import platform as fmpy_platform
+        from fmpy import platform_tuple as fmpy_platform_tuple
+        from fmpy import read_model_description, supported_platforms
 
         if not fmus:
             self.problem("fmus", "no FMU instances: add at least one [fmus.NAME] table")
@@ -247,6 +250,11 @@ class _Validator:
                 continue
             if md.coSimulation is None:
                 self.problem(f"{key}.fmu", f"{fmu_path.name} has no co-simulation interface (model exchange only)")
+                continue
+            platforms = supported_platforms(str(fmu_path))
+            if fmpy_platform not in platforms and f"{fmpy_platform_tuple}" not in platforms:
+                self.problem(f"{key}.fmu", f"{fmu_path.name} has no binary for this platform ({fmpy_platform}); "
+                                           f"it supports: {', '.join(platforms) or 'none'}")
                 continue
             multiple = spec.get("step_multiple", 1)
             if isinstance(multiple, bool) or not isinstance(multiple, int) or multiple < 1:

@@ -129,3 +129,21 @@ def test_shipped_scenarios_validate():
     assert shipped
     for path in shipped:
         load_scenario(path)
+
+
+def test_fmu_without_a_binary_for_this_platform(write_scenario, vehicle_fmu, tmp_path):
+    import zipfile
+
+    stripped = tmp_path / "WinOnly.fmu"
+    with zipfile.ZipFile(vehicle_fmu) as src, zipfile.ZipFile(stripped, "w") as dst:
+        for item in src.infolist():
+            if not item.filename.startswith("binaries/linux64/"):
+                dst.writestr(item, src.read(item))
+    found = problems(write_scenario, GOOD.replace('[fmus.b]\nfmu = "{vehicle}"', f'[fmus.b]\nfmu = "{stripped}"'))
+    assert any(p.startswith("fmus.b.fmu:") and "no binary for this platform (linux64)" in p and "win64" in p
+               for p in found), found
+
+
+def test_unknown_key_in_scenario_table(write_scenario):
+    found = problems(write_scenario, GOOD + '[scenario]\nnmae = "typo"\n')
+    assert any(p.startswith("scenario.nmae: unknown key") for p in found), found
