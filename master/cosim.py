@@ -109,8 +109,7 @@ class CoSimulation:
                 self._tmp_dirs.append(unzipped[inst.path])
             fmu = FmuInstance(inst.name, inst.model_description, unzipped[inst.path])
             members[inst.name] = _Member(fmu, inst.step_multiple)
-            fmu.instantiate(t.start, t.stop)
-            fmu.set_by_name({**inst.parameters, **inst.start})
+            fmu.instantiate(t.start, t.stop, {**inst.parameters, **inst.start})
 
     def _bind(self, members: dict[str, _Member]) -> tuple[list[Any], list[int], list[str]]:
         """Give every observed variable a slot in one flat list and pre-bind the transfers."""
@@ -253,6 +252,9 @@ class CoSimulation:
             status, error = "failed", str(exc)
         except (Interrupted, KeyboardInterrupt):
             status, error = "interrupted", "interrupted by signal"
+        except Exception as exc:  # a bug of ours: record it with the data, then let it surface
+            status, error = "failed", f"internal error: {type(exc).__name__}: {exc}"
+            raise
         finally:
             wall = time.perf_counter() - wall0
             if progress is not None:

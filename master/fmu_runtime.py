@@ -87,7 +87,12 @@ class FmuInstance:
         text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
         self.log.append(f"[{_LEVELS[status] if 0 <= status < len(_LEVELS) else status}] {text.strip()}")
 
-    def instantiate(self, start_time: float, stop_time: float) -> None:
+    def instantiate(self, start_time: float, stop_time: float, start_values: dict[str, Any]) -> None:
+        """Instantiate, set parameters and start values, enter initialization mode.
+
+        Start values go in before initialization mode: FMI allows variables with
+        initial="approx" to be set only then.
+        """
         self.time = start_time
         try:
             if self.fmi3:
@@ -97,7 +102,6 @@ class FmuInstance:
                                         modelIdentifier=self.md.coSimulation.modelIdentifier,
                                         instanceName=self.name)
                 self._slave.instantiate(loggingOn=True, logMessage=self._logger)
-                self._slave.enterInitializationMode(startTime=start_time, stopTime=stop_time)
             else:
                 from fmpy import calloc, free
                 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
@@ -115,9 +119,16 @@ class FmuInstance:
                                         instanceName=self.name)
                 self._slave.instantiate(callbacks=callbacks, loggingOn=True)
                 self._slave.setupExperiment(startTime=start_time, stopTime=stop_time)
-                self._slave.enterInitializationMode()
         except Exception as exc:
             self.fail("instantiate", exc)
+        self.set_by_name(start_values)
+        try:
+            if self.fmi3:
+                self._slave.enterInitializationMode(startTime=start_time, stopTime=stop_time)
+            else:
+                self._slave.enterInitializationMode()
+        except Exception as exc:
+            self.fail("enterInitializationMode", exc)
 
     def exit_initialization(self) -> None:
         try:

@@ -11,8 +11,21 @@ _FAMILIES = {
 }
 
 
+# Families the master can set, get, connect and record (not Binary, Clock).
+SUPPORTED_FAMILIES = ("real", "integer", "boolean", "string")
+
+
 def family(fmi_type: str) -> str:
     return _FAMILIES.get(fmi_type, fmi_type.lower())
+
+
+def unsupported_reason(var) -> str | None:
+    """Why the master cannot exchange this variable, or None when it can."""
+    if getattr(var, "dimensions", None):
+        return f"{var.name!r} is an array variable (FMI 3 dimensions); arrays are not supported yet"
+    if family(var.type) not in SUPPORTED_FAMILIES:
+        return f"{var.name!r} is of type {var.type}, which the master cannot exchange"
+    return None
 
 
 def check_value(fmi_type: str, value) -> str | None:

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from master.errors import ScenarioError
-from master.fmu_variables import check_value, family
+from master.fmu_variables import check_value, family, unsupported_reason
 
 MODES = ("lockstep", "realtime")
 ORDERINGS = ("jacobi", "gauss-seidel")
@@ -262,6 +262,11 @@ class _Validator:
                 multiple = 1
             elif time.n_steps % multiple:
                 self.problem(f"{key}.step_multiple", f"{multiple} does not divide the run's {time.n_steps} steps")
+            if md.coSimulation.canBeInstantiatedOnlyOncePerProcess and any(
+                    other.path == fmu_path for other in result.values()):
+                self.problem(key, f"{fmu_path.name} declares canBeInstantiatedOnlyOncePerProcess; "
+                                  "it cannot have a second instance in this run")
+                continue
             inst = Instance(name, fmu, fmu_path, md, step_multiple=multiple)
             inst.parameters = self.values(inst, self.table(spec, "parameters", f"{key}.parameters"),
                                           f"{key}.parameters", parameters=True)
@@ -276,6 +281,9 @@ class _Validator:
             var = variables.get(var_name)
             if var is None:
                 self.problem(key, f"unknown variable {var_name!r} of {inst.path.name} ({_suggest(var_name, variables)})")
+                continue
+            if unsupported_reason(var):
+                self.problem(key, unsupported_reason(var))
                 continue
             if parameters and var.causality != "parameter":
                 self.problem(key, f"{var_name!r} has causality {var.causality}, not parameter "
@@ -335,6 +343,9 @@ class _Validator:
         if var is None:
             self.problem(key, f"unknown variable {inst_name}.{var_name} ({_suggest(var_name, inst.variables)})")
             return None
+        if unsupported_reason(var):
+            self.problem(key, unsupported_reason(var))
+            return None
         if var.causality != causality:
             side = "source" if causality == "output" else "target"
             self.problem(key, f"causality mismatch: {inst_name}.{var_name} is {var.causality}, "
@@ -356,17 +367,23 @@ class _Validator:
             if inst is None:
                 self.problem(key, f"unknown instance {inst_name!r} in {pattern!r}")
                 continue
-            if var_name == "*":
-                names = [v.name for v in inst.model_description.modelVariables if v.causality == "output"]
+            if var_name == "*":  # every output the master can record; arrays, Binary, Clock, String left out
+                names = [v.name for v in inst.model_description.modelVariables
+                         if v.causality == "output" and not unsupported_reason(v) and family(v.type) != "string"]
             elif var_name in inst.variables:
+                var = inst.variables[var_name]
+                reason = unsupported_reason(var) or (
+                    f"{var_name!r} is a String; only numeric variables are recorded"
+                    if family(var.type) == "string" else None)
+                if reason:
+                    self.problem(key, reason)
+                    continue
                 names = [var_name]
             else:
                 self.problem(key, f"unknown variable {pattern!r} ({_suggest(var_name, inst.variables)})")
                 continue
             for n in names:
-                if family(inst.variables[n].type) == "string":
-                    self.problem(key, f"{inst_name}.{n} is a String; only numeric variables are recorded")
-                elif (inst_name, n) not in chosen:
+                if (inst_name, n) not in chosen:
                     chosen.append((inst_name, n))
         return chosen
 

@@ -147,3 +147,32 @@ def test_fmu_without_a_binary_for_this_platform(write_scenario, vehicle_fmu, tmp
 def test_unknown_key_in_scenario_table(write_scenario):
     found = problems(write_scenario, GOOD + '[scenario]\nnmae = "typo"\n')
     assert any(p.startswith("scenario.nmae: unknown key") for p in found), found
+
+
+def test_once_per_process_fmu_cannot_have_two_instances(write_scenario, vehicle_fmu, tmp_path):
+    import zipfile
+
+    once = tmp_path / "Once.fmu"
+    with zipfile.ZipFile(vehicle_fmu) as src, zipfile.ZipFile(once, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == "modelDescription.xml":
+                data = data.replace(b'canBeInstantiatedOnlyOncePerProcess="false"',
+                                    b'canBeInstantiatedOnlyOncePerProcess="true"')
+            dst.writestr(item, data)
+    text = GOOD.replace('fmu = "{vehicle}"', f'fmu = "{once}"')
+    found = problems(write_scenario, text)
+    assert any(p.startswith("fmus.b:") and "canBeInstantiatedOnlyOncePerProcess" in p for p in found), found
+
+
+def test_unsupported_variable_kinds_are_named():
+    from types import SimpleNamespace
+
+    from master.fmu_variables import unsupported_reason
+
+    array = SimpleNamespace(name="grid", type="Float64", dimensions=[object()])
+    binary = SimpleNamespace(name="blob", type="Binary", dimensions=[])
+    scalar = SimpleNamespace(name="y", type="Float64", dimensions=[])
+    assert "array variable" in unsupported_reason(array)
+    assert "type Binary" in unsupported_reason(binary)
+    assert unsupported_reason(scalar) is None
