@@ -63,8 +63,8 @@ class FmuSource:
         digest = hashlib.sha256()
         digest.update(f"pythonfmu {pythonfmu.__version__}\n".encode())
         for path in [Path(__file__).resolve(), *self.source_files()]:
-            digest.update(str(path.relative_to(PACKAGE_DIR)).encode() + b"\0")
-            digest.update(path.read_bytes() + b"\0")
+            label = path.relative_to(self.folder.parent) if path.is_relative_to(self.folder.parent) else path.name
+            digest.update(str(label).encode() + b"\0" + path.read_bytes() + b"\0")
         return digest.hexdigest()
 
 

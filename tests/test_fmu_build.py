@@ -67,19 +67,20 @@ def test_unchanged_sources_are_skipped(fmu_dir):
     assert (fmu_dir / "VehicleDynamics.fmu").stat().st_mtime_ns == before
 
 
-def test_changed_source_changes_the_hash(tmp_path, monkeypatch):
-    source = next(s for s in discover() if s.model_identifier == "VehicleDynamics")
-    original = source.content_hash()
-    copy = tmp_path / "model.py"
-    copy.write_text(source.folder.joinpath("model.py").read_text())
-    files = [p if p.name != "model.py" else copy for p in source.source_files()]
-    monkeypatch.setattr(FmuSource, "source_files", lambda self: files)
-    # relative_to(PACKAGE_DIR) would fail for the copy: hash by content only here
-    monkeypatch.setattr("fmus.builder.PACKAGE_DIR", Path("/"))
-    same = source.content_hash()
-    copy.write_text(copy.read_text() + "\n# changed\n")
-    assert source.content_hash() != same
-    assert original  # the real hash is a non-empty digest
+def test_hash_follows_content_not_location(tmp_path, monkeypatch):
+    import shutil
+
+    import fmus.builder as builder
+
+    real = next(s for s in discover() if s.model_identifier == "VehicleDynamics")
+    copy = tmp_path / "fmus"
+    shutil.copytree(builder.PACKAGE_DIR, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    monkeypatch.setattr(builder, "PACKAGE_DIR", copy)
+    moved = FmuSource(copy / "vehicle", "VehicleDynamics")
+    assert moved.content_hash() == real.content_hash()
+    model = copy / "vehicle" / "model.py"
+    model.write_text(model.read_text() + "\n# changed\n")
+    assert moved.content_hash() != real.content_hash()
 
 
 def test_rebuild_when_output_missing(tmp_path):
