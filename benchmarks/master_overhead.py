@@ -382,6 +382,9 @@ def main(argv: list[str] | None = None) -> int:
               f"{realtime['sim_seconds']:g} s ({realtime['lag_samples']} steps)")
         print(f"  start lag ms: p50 {lag['p50']:.4f}  p99 {lag['p99']:.4f}  max {lag['max']:.4f}   "
               f"deadline misses {realtime['deadline_misses']}  (achieved RTF {realtime['achieved_rtf']:.4f})")
+        sc = realtime["step_compute_ms"]
+        if sc.get("p50") is not None:
+            print(f"  step compute ms: p50 {sc['p50']:.4f}  p99 {sc['p99']:.4f}  max {sc['max']:.4f}")
         print(f"goal: p99 <= {GOAL_P99_MS:g} ms, no deadline misses on an idle machine: {'PASS' if ok else 'FAIL'}")
 
     if profile_text:

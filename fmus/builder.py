@@ -13,7 +13,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import inspect
-import shutil
+import re
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,10 +48,6 @@ class FmuSource:
 
     folder: Path
     model_identifier: str
-
-    @property
-    def module(self) -> str:
-        return f"fmus.{self.folder.name}.slave"
 
     def source_files(self) -> list[Path]:
         own = sorted(p for p in self.folder.rglob("*.py") if "__pycache__" not in p.parts)
@@ -92,18 +88,31 @@ def discover() -> list[FmuSource]:
     return sources
 
 
-def _stage(source: FmuSource, staging: Path) -> Path:
-    """Lay out the FMU's resources: an entry script and a copy of its sources."""
-    package = staging / "fmus"
+_FMUS_IMPORT = re.compile(r"^(\s*)(from|import)\s+fmus(?=[.\s])", re.MULTILINE)
+
+
+def package_alias(source: FmuSource, digest: str) -> str:
+    """Name of the FMU's private copy of the `fmus` package.
+
+    The FMU runs inside the importing Python process. Under the plain name
+    `fmus` it would pick up whatever `fmus` that process already imported
+    (the working tree, or another FMU's copy) instead of its own sources.
+    """
+    return f"_v2i_{source.model_identifier}_{digest[:12]}"
+
+
+def _stage(source: FmuSource, staging: Path, alias: str) -> Path:
+    """Lay out the FMU's resources: an entry script and a private copy of its sources."""
+    package = staging / alias  # beside the entry script: the build imports it from there
     for path in source.source_files():
         target = package / path.relative_to(PACKAGE_DIR)
         target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(path, target)
+        target.write_text(_FMUS_IMPORT.sub(rf"\1\2 {alias}", path.read_text()))
     # pythonfmu imports the entry script by its file name inside the FMU;
     # naming it after the model identifier keeps FMUs apart in one process.
-    entry = staging / "entry" / f"{source.model_identifier}.py"
-    entry.parent.mkdir()
-    entry.write_text(_ENTRY_TEMPLATE.format(module=source.module, cls=source.model_identifier))
+    entry = staging / f"{source.model_identifier}.py"
+    module = f"{alias}.{source.folder.name}.slave"
+    entry.write_text(_ENTRY_TEMPLATE.format(module=module, cls=source.model_identifier))
     return entry
 
 
@@ -114,9 +123,10 @@ def build_one(source: FmuSource, out_dir: Path) -> Path:
 
     out_dir.mkdir(parents=True, exist_ok=True)
     target = out_dir / f"{source.model_identifier}.fmu"
+    alias = package_alias(source, source.content_hash())
     with tempfile.TemporaryDirectory(prefix="v2i-fmu-") as tmp:
-        entry = _stage(source, Path(tmp))
-        FmuBuilder.build_FMU(entry, dest=target, project_files=[Path(tmp) / "fmus"])
+        entry = _stage(source, Path(tmp), alias)
+        FmuBuilder.build_FMU(entry, dest=target, project_files=[Path(tmp) / alias])
     problems = validate_fmu(str(target))
     if problems:
         target.unlink()

@@ -106,3 +106,20 @@ def test_many_instances_in_one_process(vehicle_fmu):
         result = simulate_fmu(str(vehicle_fmu), stop_time=0.05, output_interval=0.05,
                               start_values={"v0": float(i)}, output=["v"])
         assert result["v"][0] == pytest.approx(float(i))
+
+
+def test_fmu_runs_its_own_packaged_code_beside_the_working_tree(vehicle_fmu):
+    """Even with the working tree's `fmus` imported in this process, the FMU's slave
+    class comes from the copy inside the FMU (a private package name per build)."""
+    import sys
+
+    import fmus.vehicle.slave  # noqa: F401  - the working tree's copy is loaded
+    from fmpy import simulate_fmu
+
+    simulate_fmu(str(vehicle_fmu), stop_time=0.01)
+    entry = sys.modules["VehicleDynamics"]
+    module = sys.modules[entry.VehicleDynamics.__module__]
+    assert module.__name__.startswith("_v2i_VehicleDynamics_")
+    assert "fmus/vehicle" not in Path(module.__file__).as_posix()
+    model = sys.modules[module.__name__.replace(".slave", ".model")]
+    assert Path(model.__file__).parent == Path(module.__file__).parent

@@ -27,9 +27,11 @@ from dataclasses import dataclass, fields
 __all__ = ["VehicleParams", "VehicleModel"]
 
 
-@dataclass
+@dataclass(frozen=True)
 class VehicleParams:
     """Model parameters; defaults are CommonRoad vehicle 1 (Ford Escort).
+
+    Frozen: the model validates them once, at construction, not every step.
 
     Sources: CommonRoad vehicle models, ``parameters_vehicle1`` (mass 84 lb s^2/ft,
     a = 2.9 ft, b = 4.95 ft, steering and longitudinal constraints).
@@ -381,7 +383,6 @@ class VehicleModel:
         """
         accel_cmd = _finite("accel_cmd", accel_cmd)
         _finite("steer_cmd", steer_cmd)
-        self.params.validate()
         self.a = self.net_accel(self.v, accel_cmd, bool(reverse))
         # CommonRoad KS model: yaw rate = v tan(steer) / l.
         self.yaw_rate = self.v * math.tan(self.steer) / self.params.wheelbase
@@ -401,7 +402,6 @@ class VehicleModel:
         accel_cmd = _finite("accel_cmd", accel_cmd)
         steer_cmd = _finite("steer_cmd", steer_cmd)
         p = self.params
-        p.validate()
         reverse = bool(reverse)
         if dt > 0.0:
             s = -1.0 if reverse else 1.0
