@@ -20,7 +20,7 @@ fmus: $(STAMP)
 	$(BIN)/v2i build-fmus
 
 demo: fmus
-	$(BIN)/v2i run scenarios/two_vehicles.toml --out runs/demo
+	$(BIN)/v2i run scenarios/two_vehicles.toml
 
 test: fmus
 	$(BIN)/python -m pytest -q
