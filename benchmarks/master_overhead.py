@@ -231,7 +231,7 @@ def profile_master(fmu: Path, n: int, steps: int, work: Path, top: int = 15) -> 
         lines.append(f"  {tt / total * 100:5.1f} %  {tt:7.3f} s  {cat}")
     master_funcs = sorted(((f, v) for f, v in stats.items() if "/master/" in f[0].replace("\\", "/")),
                           key=lambda fv: -fv[1][2])[:top]
-    lines.append(f"master functions by own time (share of all own time), cumulative time incl. callees:")
+    lines.append("master functions by own time (share of all own time), cumulative time incl. callees:")
     lines.append(f"  {'own %':>6} {'own s':>7} {'cum s':>7} {'calls':>8}  function")
     rows = []
     for (filename, lineno, name), (_cc, nc, tt, ct, _callers) in master_funcs:

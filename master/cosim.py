@@ -19,7 +19,6 @@ import json
 import platform
 import shutil
 import signal
-import sys
 import time
 from array import array
 from dataclasses import dataclass, field
