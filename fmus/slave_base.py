@@ -11,13 +11,13 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 from xml.etree.ElementTree import Element, SubElement
 
-from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String
 from pythonfmu.default_experiment import DefaultExperiment
 
 from fmus.units import base_unit_attributes
 
-_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean}
-_CASTS = {"Real": float, "Integer": int, "Boolean": bool}
+_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean, "String": String}
+_CASTS = {"Real": float, "Integer": int, "Boolean": bool, "String": str}
 
 
 @dataclass(frozen=True)
@@ -29,7 +29,7 @@ class Var:
     description: str
     unit: str = "1"
     start: Any = 0.0  # required for inputs and parameters; outputs are calculated
-    type: str = "Real"
+    type: str = "Real"  # "Real" | "Integer" | "Boolean" | "String"
     variability: str | None = None  # default: "fixed" for parameters, else continuous/discrete
 
     def resolved_variability(self) -> str:
