@@ -28,19 +28,19 @@ import argparse
 import cProfile
 import json
 import os
-import platform
 import pstats
 import shutil
-import statistics
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:  # run as a plain script from anywhere
     sys.path.insert(0, str(ROOT))
+
+from benchmarks.common import machine_info as common_machine_info  # noqa: E402
+from benchmarks.common import summary, write_report  # noqa: E402
 
 STEP = 0.01
 MASTER_NS = (1, 10, 50)
@@ -154,26 +154,10 @@ def run_bare(fmu: Path, steps: int) -> dict:
     return {"loop_s": loop, "whole_s": None}
 
 
-def summary(values: list[float]) -> dict:
-    return {"median": statistics.median(values), "min": min(values), "max": max(values), "all": values}
-
-
 def machine_info() -> dict:
     import fmpy
 
-    info = {
-        "platform": platform.platform(),
-        "cpu_count": os.cpu_count(),
-        "python": sys.version.split()[0],
-        "fmpy": fmpy.__version__,
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "processor": platform.processor() or platform.machine(),
-    }
-    try:
-        info["loadavg_start"] = list(os.getloadavg())
-    except OSError:
-        pass
-    return info
+    return common_machine_info(fmpy=fmpy.__version__)
 
 
 def _category(func: tuple) -> str | None:
@@ -407,9 +391,7 @@ def main(argv: list[str] | None = None) -> int:
         "realtime": realtime,
         "profile_master_n10": profile_data,
     }
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(report, indent=2) + "\n")
-    print(f"\nwrote {args.json}")
+    write_report(args.json, report)
     return 0
 
 

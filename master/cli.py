@@ -111,6 +111,12 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("info", help="list an FMU's variables")
     i.add_argument("fmu", help="an .fmu file or a project FMU name")
     i.set_defaults(func=_cmd_info)
+
+    from bridges.j2735 import cli as j2735_cli
+    from bridges.security import cli as pki_cli
+
+    j2735_cli.add_parser(sub)
+    pki_cli.add_parser(sub)
     return p
 
 

@@ -9,6 +9,21 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def shared_dir() -> Path | None:
+    """The workplace's shared/ folder (ANCHORS.md, interop/, anchors/), wherever this checkout is.
+
+    V2I_SHARED_DIR wins; then shared/ beside the checkout (the normal layout),
+    then /work/shared (where CI's clean clones in a temporary folder find it).
+    """
+    import os
+
+    candidates = [os.environ.get("V2I_SHARED_DIR"), ROOT.parent / "shared", "/work/shared"]
+    for candidate in candidates:
+        if candidate and (Path(candidate) / "ANCHORS.md").exists():
+            return Path(candidate)
+    return None
+
+
 @pytest.fixture(scope="session")
 def fmu_dir() -> Path:
     """The project's FMUs, built (or found up to date) in build/fmus."""

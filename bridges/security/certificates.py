@@ -1,0 +1,266 @@
+"""A small scenario certificate authority: 1609.2 explicit certificates, ECDSA P-256.
+
+The CA's self-signed root is what receivers trust; it issues one certificate
+per station (RSU, vehicle) naming the PSIDs the station may sign for. Keys and
+certificates are files: `<name>.cert` (the certificate's COER bytes) and
+`<name>.key` (PKCS#8 PEM), so a real RSU box can be provisioned by copying two
+files. Signatures follow 1609.2's construction: ECDSA over
+SHA-256(SHA-256(tbs) || SHA-256(signer certificate, or empty for self-signed)).
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from cryptography.exceptions import InvalidSignature
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.hazmat.primitives.asymmetric.utils import (Prehashed, decode_dss_signature,
+                                                             encode_dss_signature)
+
+from bridges.security import oer
+from bridges.security.oer import SecurityFormatError
+
+# 1609.2 Time32/Time64 count from 2004-01-01 00:00:00 (TAI). The simulation's
+# clock has no leap seconds, so the offset to UTC is ignored here.
+EPOCH_1609 = datetime(2004, 1, 1, tzinfo=timezone.utc)
+_CURVE = ec.SECP256R1()
+_N = int("FFFFFFFF00000000FFFFFFFFFFFFFFFFBCE6FAADA7179E84F3B9CAC2FC632551", 16)  # P-256 order
+
+DURATION_SECONDS = {"microseconds": 1e-6, "milliseconds": 1e-3, "seconds": 1, "minutes": 60,
+                    "hours": 3600, "sixtyHours": 216000, "years": 31556952}
+
+
+def time32(moment: datetime) -> int:
+    """Seconds since the 1609.2 epoch."""
+    return int((moment - EPOCH_1609).total_seconds())
+
+
+def time64_us(unix_seconds: float) -> int:
+    """Microseconds since the 1609.2 epoch, from Unix time."""
+    return round((unix_seconds - EPOCH_1609.timestamp()) * 1e6)
+
+
+def sha256(data: bytes) -> bytes:
+    return hashlib.sha256(data).digest()
+
+
+def hashed_id8(certificate_bytes: bytes) -> bytes:
+    """HashedId8: the low-order 8 bytes of SHA-256 over the certificate's COER encoding."""
+    return sha256(certificate_bytes)[-8:]
+
+
+def signing_digest(tbs: bytes, signer_certificate: bytes | None) -> bytes:
+    """1609.2 §5.3.1: H(H(data) || H(signer)); an empty signer input for self-signed data."""
+    return sha256(sha256(tbs) + sha256(signer_certificate or b""))
+
+
+def public_point(key: ec.EllipticCurvePublicKey) -> tuple[str, bytes]:
+    """The key as a 1609.2 EccP256CurvePoint in compressed form."""
+    raw = key.public_bytes(serialization.Encoding.X962, serialization.PublicFormat.CompressedPoint)
+    return ("compressed-y-0" if raw[0] == 2 else "compressed-y-1", raw[1:])
+
+
+def key_from_point(point: tuple[str, Any]) -> ec.EllipticCurvePublicKey:
+    kind, value = point
+    if kind == "compressed-y-0":
+        raw = b"\x02" + value
+    elif kind == "compressed-y-1":
+        raw = b"\x03" + value
+    elif kind == "uncompressedP256":
+        raw = b"\x04" + value["x"] + value["y"]
+    else:
+        raise SecurityFormatError(f"verification key given as {kind!r}, which carries no usable key")
+    try:
+        return ec.EllipticCurvePublicKey.from_encoded_point(_CURVE, raw)
+    except ValueError:
+        raise SecurityFormatError("verification key is not a point on P-256") from None
+
+
+def sign_digest(key: ec.EllipticCurvePrivateKey, digest: bytes) -> tuple[str, dict[str, Any]]:
+    """An ecdsaNistP256Signature (r as x-only) over a precomputed SHA-256 digest."""
+    r, s = decode_dss_signature(key.sign(digest, ec.ECDSA(Prehashed(hashes.SHA256()))))
+    return ("ecdsaNistP256Signature", {"rSig": ("x-only", r.to_bytes(32, "big")),
+                                       "sSig": s.to_bytes(32, "big")})
+
+
+def verify_digest(key: ec.EllipticCurvePublicKey, digest: bytes, signature: tuple[str, Any]) -> bool:
+    kind, value = signature
+    if kind != "ecdsaNistP256Signature":
+        return False
+    point_kind, r_bytes = value["rSig"]
+    if point_kind not in ("x-only", "compressed-y-0", "compressed-y-1"):
+        return False
+    r = int.from_bytes(r_bytes, "big") % _N  # r is R's x coordinate reduced mod n
+    s = int.from_bytes(value["sSig"], "big")
+    if not (0 < r < _N and 0 < s < _N):
+        return False
+    try:
+        key.verify(encode_dss_signature(r, s), digest, ec.ECDSA(Prehashed(hashes.SHA256())))
+        return True
+    except InvalidSignature:
+        return False
+
+
+@dataclass
+class Certificate:
+    """A decoded 1609.2 explicit certificate with its COER bytes."""
+
+    encoded: bytes
+    fields: dict[str, Any] = field(repr=False)
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> "Certificate":
+        return cls(bytes(data), oer.decode("Certificate", data))
+
+    @property
+    def digest(self) -> bytes:
+        return hashed_id8(self.encoded)
+
+    @property
+    def name(self) -> str:
+        kind, value = self.fields["toBeSigned"]["id"]
+        return value if kind == "name" else f"<{kind}>"
+
+    @property
+    def psids(self) -> set[int]:
+        return {p["psid"] for p in self.fields["toBeSigned"].get("appPermissions", ())}
+
+    @property
+    def self_signed(self) -> bool:
+        return self.fields["issuer"][0] == "self"
+
+    @property
+    def issuer_digest(self) -> bytes | None:
+        kind, value = self.fields["issuer"]
+        return value if kind == "sha256AndDigest" else None
+
+    def validity(self) -> tuple[float, float]:
+        """(start, end) in seconds since the 1609.2 epoch."""
+        period = self.fields["toBeSigned"]["validityPeriod"]
+        unit, count = period["duration"]
+        return float(period["start"]), period["start"] + count * DURATION_SECONDS[unit]
+
+    def public_key(self) -> ec.EllipticCurvePublicKey:
+        kind, value = self.fields["toBeSigned"]["verifyKeyIndicator"]
+        if kind != "verificationKey" or value[0] != "ecdsaNistP256":
+            raise SecurityFormatError(f"certificate {self.name!r} has no explicit P-256 verification key")
+        return key_from_point(value[1])
+
+    def tbs_bytes(self) -> bytes:
+        return oer.encode("ToBeSignedCertificate", self.fields["toBeSigned"])
+
+    def signed_by(self, issuer: "Certificate | None") -> bool:
+        """True when this certificate's signature verifies with `issuer`'s key (None: self-signed)."""
+        signature = self.fields.get("signature")
+        if signature is None:
+            return False
+        signer = issuer or self
+        digest = signing_digest(self.tbs_bytes(), None if issuer is None else issuer.encoded)
+        return verify_digest(signer.public_key(), digest, signature)
+
+
+@dataclass
+class Credentials:
+    """A station's (or the CA's) certificate and private key."""
+
+    certificate: Certificate
+    key: ec.EllipticCurvePrivateKey
+
+    @property
+    def name(self) -> str:
+        return self.certificate.name
+
+    def save(self, directory: str | Path) -> tuple[Path, Path]:
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        cert_path, key_path = directory / f"{self.name}.cert", directory / f"{self.name}.key"
+        cert_path.write_bytes(self.certificate.encoded)
+        key_path.write_bytes(self.key.private_bytes(serialization.Encoding.PEM,
+                                                    serialization.PrivateFormat.PKCS8,
+                                                    serialization.NoEncryption()))
+        key_path.chmod(0o600)
+        return cert_path, key_path
+
+
+def load_certificate(path: str | Path) -> Certificate:
+    path = Path(path)
+    try:
+        return Certificate.from_bytes(path.read_bytes())
+    except OSError as exc:
+        raise SecurityFormatError(f"{path}: cannot read certificate: {exc.strerror}") from None
+    except SecurityFormatError as exc:
+        raise SecurityFormatError(f"{path}: not a 1609.2 certificate: {exc.reason}") from None
+
+
+def load_credentials(directory: str | Path, name: str) -> Credentials:
+    """`<name>.cert` and `<name>.key` from `directory`; the key must match the certificate."""
+    directory = Path(directory)
+    certificate = load_certificate(directory / f"{name}.cert")
+    key_path = directory / f"{name}.key"
+    try:
+        key = serialization.load_pem_private_key(key_path.read_bytes(), password=None)
+    except OSError as exc:
+        raise SecurityFormatError(f"{key_path}: cannot read key: {exc.strerror}") from None
+    except (ValueError, TypeError) as exc:
+        raise SecurityFormatError(f"{key_path}: not an unencrypted PEM private key: {exc}") from None
+    if not isinstance(key, ec.EllipticCurvePrivateKey) or not isinstance(key.curve, ec.SECP256R1):
+        raise SecurityFormatError(f"{key_path}: not a P-256 key")
+    if public_point(key.public_key()) != certificate.fields["toBeSigned"]["verifyKeyIndicator"][1][1]:
+        raise SecurityFormatError(f"{key_path}: key does not match {name}.cert")
+    return Credentials(certificate, key)
+
+
+def _certificate(name: str, key: ec.EllipticCurvePrivateKey, start: datetime, hours: int,
+                 psids: list[int] | None, issuer: Credentials | None) -> Credentials:
+    tbs: dict[str, Any] = {
+        "id": ("name", name),
+        "cracaId": b"\x00\x00\x00",
+        "crlSeries": 0,
+        "validityPeriod": {"start": time32(start), "duration": ("hours", hours)},
+        "verifyKeyIndicator": ("verificationKey", ("ecdsaNistP256", public_point(key.public_key()))),
+    }
+    if psids:
+        tbs["appPermissions"] = [{"psid": int(p)} for p in psids]
+    digest = signing_digest(oer.encode("ToBeSignedCertificate", tbs),
+                            None if issuer is None else issuer.certificate.encoded)
+    signer_key = key if issuer is None else issuer.key
+    fields = {
+        "version": 3,
+        "type": "explicit",
+        "issuer": ("self", "sha256") if issuer is None else ("sha256AndDigest", issuer.certificate.digest),
+        "toBeSigned": tbs,
+        "signature": sign_digest(signer_key, digest),
+    }
+    return Credentials(Certificate(oer.encode("Certificate", fields), fields), key)
+
+
+class ScenarioCA:
+    """Issues station certificates under one self-signed root."""
+
+    def __init__(self, credentials: Credentials):
+        self.credentials = credentials
+
+    @classmethod
+    def create(cls, name: str = "v2i-scenario-ca", start: datetime | None = None,
+               hours: int = 24 * 365) -> "ScenarioCA":
+        start = start or datetime.now(timezone.utc)
+        return cls(_certificate(name, ec.generate_private_key(_CURVE), start, hours, None, None))
+
+    @classmethod
+    def load(cls, directory: str | Path, name: str = "v2i-scenario-ca") -> "ScenarioCA":
+        return cls(load_credentials(directory, name))
+
+    @property
+    def certificate(self) -> Certificate:
+        return self.credentials.certificate
+
+    def issue(self, name: str, psids: list[int], start: datetime | None = None,
+              hours: int = 24 * 30) -> Credentials:
+        if not psids:
+            raise ValueError(f"station {name!r}: give at least one PSID it may sign for")
+        start = start or datetime.now(timezone.utc)
+        return _certificate(name, ec.generate_private_key(_CURVE), start, hours, psids, self.credentials)

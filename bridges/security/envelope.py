@@ -1,0 +1,230 @@
+"""The 1609.2-style security envelope: sign J2735 payloads, verify what arrives.
+
+Signed messages are real IEEE 1609.2 `Ieee1609Dot2Data` structures (COER):
+signedData { hashId sha256, tbsData { payload { data = unsecuredData(payload),
+extDataHash = SHA-256(payload) }, headerInfo { psid, generationTime } },
+signer = certificate digest (or the full certificate once per
+`certificate_interval_s`, as J2945/1 asks of BSM senders), signature
+ecdsaNistP256 }.
+
+Carrying the payload's SHA-256 next to the payload is this project's choice
+(1609.2 defines extDataHash for data sent elsewhere): the signature covers
+both, and a receiver can tell a payload altered in transit (digest mismatch)
+from a forged or corrupted signature. Envelopes without it are still verified.
+"""
+from __future__ import annotations
+
+import enum
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Any, Iterable
+
+from bridges.security import oer
+from bridges.security.certificates import (Certificate, Credentials, sha256, sign_digest,
+                                           signing_digest, verify_digest)
+from bridges.security.oer import PROTOCOL_VERSION, SecurityFormatError
+
+PSID_BSM = 0x20            # SAE J2945/1 basic safety message
+PSID_SURROGATE_BSM = 0x7F  # test PSID SAE J2945/8 names for surrogate BSMs (testing only)
+PSID_SPAT_MAP = 0x82       # IEEE 1609.12 intersection safety and awareness (p-encoded 80-02): SPaT, MAP
+
+
+class Rejection(str, enum.Enum):
+    """Why a received envelope was refused: one distinct reason per check."""
+
+    MALFORMED = "malformed"
+    UNSECURED = "unsecured-not-allowed"
+    UNKNOWN_SIGNER = "unknown-signer"
+    UNTRUSTED_SIGNER = "untrusted-signer"
+    PSID_NOT_PERMITTED = "psid-not-permitted"
+    OUTSIDE_TIME_WINDOW = "outside-time-window"
+    REPLAYED = "replayed"
+    ALTERED_PAYLOAD = "altered-payload"
+    BAD_SIGNATURE = "bad-signature"
+
+
+class VerificationError(ValueError):
+    def __init__(self, reason: Rejection, detail: str):
+        super().__init__(f"{reason.value}: {detail}")
+        self.reason = reason
+        self.detail = detail
+
+
+@dataclass(frozen=True)
+class Verified:
+    """An accepted envelope's content."""
+
+    payload: bytes
+    psid: int | None
+    generation_time_us: int | None
+    signer: str | None  # certificate name; None for unsecured data
+    secured: bool
+
+
+class Signer:
+    """Signs payloads for one station with its credentials."""
+
+    def __init__(self, credentials: Credentials, certificate_interval_s: float = 1.0):
+        self.credentials = credentials
+        self.certificate_interval_us = round(certificate_interval_s * 1e6)
+        self._last_full_certificate_us: int | None = None
+
+    def sign(self, payload: bytes, psid: int, generation_time_us: int) -> bytes:
+        certificate = self.credentials.certificate
+        if psid not in certificate.psids:
+            raise ValueError(f"{certificate.name!r} may not sign PSID {psid:#x} (permitted: "
+                             f"{sorted(hex(p) for p in certificate.psids)})")
+        tbs = {
+            "payload": {"data": {"protocolVersion": PROTOCOL_VERSION,
+                                 "content": ("unsecuredData", bytes(payload))},
+                        "extDataHash": ("sha256HashedData", sha256(payload))},
+            "headerInfo": {"psid": psid, "generationTime": generation_time_us},
+        }
+        digest = signing_digest(oer.encode("ToBeSignedData", tbs), certificate.encoded)
+        signed = {"hashId": "sha256", "tbsData": tbs, "signer": self._signer_field(generation_time_us),
+                  "signature": sign_digest(self.credentials.key, digest)}
+        return oer.encode("Ieee1609Dot2Data", {"protocolVersion": PROTOCOL_VERSION,
+                                               "content": ("signedData", signed)})
+
+    def _signer_field(self, now_us: int) -> tuple[str, Any]:
+        last = self._last_full_certificate_us
+        if last is None or now_us - last >= self.certificate_interval_us or now_us < last:
+            self._last_full_certificate_us = now_us
+            return ("certificate", [self.credentials.certificate.fields])
+        return ("digest", self.credentials.certificate.digest)
+
+
+class Verifier:
+    """Checks envelopes against trusted CA roots, a time window and replay.
+
+    `max_age_s`/`max_future_s` bound the generation time against the
+    receiver's clock (simulation time in a run). Station certificates arrive
+    in envelopes, are checked against the roots once, and are remembered by
+    digest, so later digest-signed messages verify without the chain.
+    """
+
+    def __init__(self, trust_anchors: Iterable[Certificate], *, max_age_s: float = 0.5,
+                 max_future_s: float = 0.05, allow_unsecured: bool = False,
+                 replay_memory: int = 4096):
+        self.anchors = {cert.digest: cert for cert in trust_anchors}
+        for cert in self.anchors.values():
+            if not cert.signed_by(None):
+                raise ValueError(f"trust anchor {cert.name!r} is not a valid self-signed certificate")
+        self.max_age_us = round(max_age_s * 1e6)
+        self.max_future_us = round(max_future_s * 1e6)
+        self.allow_unsecured = allow_unsecured
+        self._stations: dict[bytes, Certificate] = {}
+        self._seen: OrderedDict[bytes, None] = OrderedDict()
+        self._replay_memory = replay_memory
+
+    def verify(self, data: bytes, now_us: int) -> Verified:
+        try:
+            envelope = oer.decode("Ieee1609Dot2Data", data)
+        except SecurityFormatError as exc:
+            raise VerificationError(Rejection.MALFORMED, exc.reason) from None
+        if envelope["protocolVersion"] != PROTOCOL_VERSION:
+            raise VerificationError(Rejection.MALFORMED, f"protocol version {envelope['protocolVersion']}, "
+                                                         f"expected {PROTOCOL_VERSION}")
+        kind, content = envelope["content"]
+        if kind == "unsecuredData":
+            if not self.allow_unsecured:
+                raise VerificationError(Rejection.UNSECURED, "unsecured data and the policy requires signatures")
+            return Verified(content, None, None, None, secured=False)
+        if kind != "signedData":
+            raise VerificationError(Rejection.MALFORMED, f"{kind} content is not supported")
+        return self._verify_signed(content, now_us)
+
+    def _verify_signed(self, signed: dict[str, Any], now_us: int) -> Verified:
+        if signed["hashId"] != "sha256":
+            raise VerificationError(Rejection.MALFORMED, f"hash algorithm {signed['hashId']} is not supported")
+        tbs = signed["tbsData"]
+        payload = _inner_payload(tbs["payload"])
+        header = tbs["headerInfo"]
+        certificate = self._signer_certificate(signed["signer"], now_us)
+        psid = header["psid"]
+        if psid not in certificate.psids:
+            raise VerificationError(Rejection.PSID_NOT_PERMITTED,
+                                    f"{certificate.name!r} is not permitted to sign PSID {psid:#x}")
+        generated = header.get("generationTime")
+        if generated is None:
+            raise VerificationError(Rejection.MALFORMED, "no generation time in the header")
+        age = now_us - generated
+        if age > self.max_age_us or -age > self.max_future_us:
+            raise VerificationError(Rejection.OUTSIDE_TIME_WINDOW,
+                                    f"generated {age / 1e3:+.1f} ms before now; window "
+                                    f"-{self.max_future_us / 1e3:g}..{self.max_age_us / 1e3:g} ms")
+        ext_hash = tbs["payload"].get("extDataHash")
+        if ext_hash is not None and ext_hash[1] != sha256(payload):
+            raise VerificationError(Rejection.ALTERED_PAYLOAD, "payload does not match its signed digest")
+        digest = signing_digest(oer.encode("ToBeSignedData", tbs), certificate.encoded)
+        if not verify_digest(certificate.public_key(), digest, signed["signature"]):
+            raise VerificationError(Rejection.BAD_SIGNATURE, f"signature does not verify with {certificate.name!r}'s key")
+        fingerprint = digest
+        if fingerprint in self._seen:
+            raise VerificationError(Rejection.REPLAYED, "the same signed message was already accepted")
+        self._remember(fingerprint)
+        return Verified(payload, psid, generated, certificate.name, secured=True)
+
+    def _signer_certificate(self, signer: tuple[str, Any], now_us: int) -> Certificate:
+        kind, value = signer
+        if kind == "digest":
+            certificate = self._stations.get(value)
+            if certificate is None:
+                raise VerificationError(Rejection.UNKNOWN_SIGNER,
+                                        f"no certificate known for digest {value.hex()} (it arrives with "
+                                        f"the sender's next full-certificate message)")
+        elif kind == "certificate":
+            if len(value) != 1:
+                raise VerificationError(Rejection.UNTRUSTED_SIGNER, "certificate chains longer than one "
+                                                                    "are not accepted")
+            try:
+                certificate = Certificate(oer.encode("Certificate", value[0]), value[0])
+            except SecurityFormatError as exc:
+                raise VerificationError(Rejection.MALFORMED, exc.reason) from None
+            if certificate.digest not in self._stations:
+                self._check_chain(certificate)
+                self._stations[certificate.digest] = certificate
+        else:
+            raise VerificationError(Rejection.UNTRUSTED_SIGNER, "self-signed data is not accepted")
+        start, end = certificate.validity()
+        now_s = now_us / 1e6
+        if not start <= now_s <= end:
+            raise VerificationError(Rejection.UNTRUSTED_SIGNER,
+                                    f"certificate {certificate.name!r} is not valid at this time")
+        return certificate
+
+    def _check_chain(self, certificate: Certificate) -> None:
+        issuer = self.anchors.get(certificate.issuer_digest or b"")
+        if issuer is None:
+            raise VerificationError(Rejection.UNTRUSTED_SIGNER,
+                                    f"certificate {certificate.name!r} is not issued by a trusted CA")
+        try:
+            valid = certificate.signed_by(issuer)
+        except SecurityFormatError as exc:
+            raise VerificationError(Rejection.MALFORMED, exc.reason) from None
+        if not valid:
+            raise VerificationError(Rejection.UNTRUSTED_SIGNER,
+                                    f"certificate {certificate.name!r} does not verify with CA {issuer.name!r}")
+
+    def _remember(self, fingerprint: bytes) -> None:
+        self._seen[fingerprint] = None
+        while len(self._seen) > self._replay_memory:
+            self._seen.popitem(last=False)
+
+
+def _inner_payload(payload: dict[str, Any]) -> bytes:
+    data = payload.get("data")
+    if data is None:
+        raise VerificationError(Rejection.MALFORMED, "signed data carries no payload")
+    if data["protocolVersion"] != PROTOCOL_VERSION or data["content"][0] != "unsecuredData":
+        raise VerificationError(Rejection.MALFORMED, "signed payload is not version-3 unsecured data")
+    return data["content"][1]
+
+
+def open_unsecured(data: bytes) -> bytes:
+    """The payload of an unsecured Ieee1609Dot2Data (no policy check); SecurityFormatError otherwise."""
+    envelope = oer.decode("Ieee1609Dot2Data", data)
+    kind, content = envelope["content"]
+    if envelope["protocolVersion"] != PROTOCOL_VERSION or kind != "unsecuredData":
+        raise SecurityFormatError(f"not version-{PROTOCOL_VERSION} unsecured data ({kind})")
+    return content
