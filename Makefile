@@ -27,6 +27,7 @@ test: fmus
 
 bench: fmus
 	$(BIN)/python benchmarks/master_overhead.py
+	$(BIN)/python benchmarks/j2735_codec.py
 
 clean:
 	rm -rf build runs
