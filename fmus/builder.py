@@ -22,6 +22,11 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 DEFAULT_OUT = Path("build") / "fmus"
 # Modules of the `fmus` package every FMU needs at run time.
 _SHARED_MODULES = ("__init__.py", "slave_base.py", "units.py")
+# Wire-format modules shared with the apps: an FMU source that imports
+# `fmus._bundled.<name>` gets a private copy of `bridges/<name>.py` as that module
+# (stdlib-only modules; the FMU cannot import the host's `bridges`).
+BRIDGES_DIR = Path(__file__).resolve().parent.parent / "bridges"
+_BUNDLED_IMPORT = re.compile(r"\bfmus\._bundled(?:\.(\w+)|\s+import\s+(\w+))")
 
 
 # pythonfmu 0.7.0's runtime finds the slave class by re-executing this file in
@@ -49,17 +54,29 @@ class FmuSource:
     folder: Path
     model_identifier: str
 
-    def source_files(self) -> list[Path]:
+    def staged_files(self) -> list[tuple[Path, Path]]:
+        """(source, path inside the FMU's private package) of every file the FMU carries."""
         own = sorted(p for p in self.folder.rglob("*.py") if "__pycache__" not in p.parts)
-        return [PACKAGE_DIR / m for m in _SHARED_MODULES] + own
+        files = [(PACKAGE_DIR / m, Path(m)) for m in _SHARED_MODULES]
+        files += [(p, p.relative_to(self.folder.parent)) for p in own]
+        names = sorted({a or b for p in own for a, b in _BUNDLED_IMPORT.findall(p.read_text())})
+        for name in names:
+            path = BRIDGES_DIR / f"{name}.py"
+            if not path.is_file():
+                raise BuildError(f"{self.folder}: imports fmus._bundled.{name}, but {path} does not exist")
+            files.append((path, Path("_bundled") / path.name))
+        return files
+
+    def source_files(self) -> list[Path]:
+        return [path for path, _ in self.staged_files()]
 
     def content_hash(self) -> str:
         import pythonfmu
 
         digest = hashlib.sha256()
         digest.update(f"pythonfmu {pythonfmu.__version__}\n".encode())
-        for path in [Path(__file__).resolve(), *self.source_files()]:
-            label = path.relative_to(self.folder.parent) if path.is_relative_to(self.folder.parent) else path.name
+        digest.update(b"builder.py\0" + Path(__file__).resolve().read_bytes() + b"\0")
+        for path, label in self.staged_files():
             digest.update(str(label).encode() + b"\0" + path.read_bytes() + b"\0")
         return digest.hexdigest()
 
@@ -104,10 +121,12 @@ def package_alias(source: FmuSource, digest: str) -> str:
 def _stage(source: FmuSource, staging: Path, alias: str) -> Path:
     """Lay out the FMU's resources: an entry script and a private copy of its sources."""
     package = staging / alias  # beside the entry script: the build imports it from there
-    for path in source.source_files():
-        target = package / path.relative_to(PACKAGE_DIR)
+    for path, relative in source.staged_files():
+        target = package / relative
         target.parent.mkdir(parents=True, exist_ok=True)
         target.write_text(_FMUS_IMPORT.sub(rf"\1\2 {alias}", path.read_text()))
+        if relative.parts[0] == "_bundled":
+            (target.parent / "__init__.py").touch()
     # pythonfmu imports the entry script by its file name inside the FMU;
     # naming it after the model identifier keeps FMUs apart in one process.
     entry = staging / f"{source.model_identifier}.py"

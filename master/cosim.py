@@ -32,6 +32,7 @@ from master.fmu_runtime import FmuInstance
 from master.pacing import Pacer
 from master.recorder import METADATA, RunRecorder
 from master.scenario import Scenario
+from master.serial_bridge import SerialBridges
 from master.stats import percentiles
 
 
@@ -90,6 +91,7 @@ class CoSimulation:
         self.run_dir = Path(run_dir) if run_dir else default_run_dir(scenario)
         self.quiet = quiet
         self._tmp_dirs: list[str] = []
+        self.serial = SerialBridges(scenario.serial, scenario.time.mode, quiet)  # serial ports (socket:// URLs)
 
     # -- set-up -------------------------------------------------------------
     def _instantiate(self, members: dict[str, _Member]) -> None:
@@ -207,6 +209,10 @@ class CoSimulation:
             recorder.write_metadata(meta)
             for m in members.values():
                 m.fmu.exit_initialization()
+            if self.serial:
+                meta["serial"] = self.serial.open({n: (m.fmu, m.multiple) for n, m in members.items()},
+                                                  self.run_dir, t.start)
+                recorder.write_metadata(meta)
             self._read_outputs(members.values(), values)
             recorder.row(t.start, [values[s] for s in record_slots])
 
@@ -220,6 +226,8 @@ class CoSimulation:
             for k in range(n):
                 lag = pacer.wait(k) if pacer else None
                 t_k = start + k * h
+                if self.serial:
+                    self.serial.before_step(k, t_k)
                 c0 = time.perf_counter()
                 due = [m for m in ordered if k % m.multiple == 0]
                 if gauss_seidel:
@@ -234,6 +242,8 @@ class CoSimulation:
                         m.fmu.do_step(t_k, m.multiple * h)
                     self._read_outputs(due, values)
                 t_next = start + (k + 1) * h
+                if self.serial:
+                    self.serial.after_step(k, t_next)
                 recorder.row(t_next, [values[s] for s in record_slots])
                 steps_done = k + 1
                 c1 = time.perf_counter()
@@ -258,6 +268,8 @@ class CoSimulation:
             wall = time.perf_counter() - wall0
             if progress is not None:
                 progress.close()
+            if self.serial:
+                meta["serial"] = self.serial.close()
             for m in members.values():
                 m.fmu.close()
             for d in self._tmp_dirs:

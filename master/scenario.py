@@ -21,7 +21,7 @@ from master.fmu_variables import check_value, family, unsupported_reason
 MODES = ("lockstep", "realtime")
 ORDERINGS = ("jacobi", "gauss-seidel")
 OVERRUN_POLICIES = ("catch-up", "skip", "slip", "abort")
-_TOP_KEYS = ("scenario", "time", "fmus", "connections", "record")
+_TOP_KEYS = ("scenario", "time", "fmus", "connections", "record", "serial")
 _TIME_KEYS = ("start", "stop", "step", "mode", "ordering", "rtf", "overrun")
 _INSTANCE_KEYS = ("fmu", "parameters", "start", "step_multiple")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -79,6 +79,7 @@ class Scenario:
     connections: list[Connection]
     record: list[tuple[str, str]]  # (instance, variable)
     raw: dict[str, Any]
+    serial: dict[str, Any] = field(default_factory=dict)  # name -> master.serial_bridge.SerialSpec
 
     def resolved(self) -> dict[str, Any]:
         """The scenario with defaults filled in and FMU paths resolved, for the run folder."""
@@ -94,6 +95,7 @@ class Scenario:
             },
             "connections": [str(c) for c in self.connections],
             "record": {"variables": [f"{i}.{v}" for i, v in self.record]},
+            **({"serial": {n: s.resolved() for n, s in self.serial.items()}} if self.serial else {}),
         }
 
 
@@ -181,9 +183,15 @@ class _Validator:
         instances = self.instances(self.table(raw, "fmus", "fmus"), time)
         connections = self.connections(raw.get("connections", []), instances)
         record = self.record(self.table(raw, "record", "record"), instances)
+        serial = {}
+        if "serial" in raw:
+            from master.serial_bridge import parse_serial
+
+            serial = parse_serial(raw["serial"], instances, connections, self.problem)
         if self.problems:
             raise ScenarioError(self.path, self.problems)
-        return Scenario(self.path, str(name), str(description), time, instances, connections, record, raw)
+        return Scenario(self.path, str(name), str(description), time, instances, connections, record, raw,
+                        serial=serial)
 
     def number(self, table: dict, key: str, dotted: str, default: float, positive: bool = False) -> float:
         value = table.get(key, default)
