@@ -25,6 +25,9 @@ BASE_UNITS: dict[str, dict[str, float]] = {
     "dB": {},
     "dBm": {},
     "dBi": {},
+    "ms": {"s": 1, "factor": 0.001},
+    "1/m": {"m": -1},
+    "dB/m": {"m": -1},
 }
 
 
