@@ -28,6 +28,8 @@ test: fmus
 bench: fmus
 	$(BIN)/python benchmarks/master_overhead.py
 	$(BIN)/python benchmarks/j2735_codec.py
+	$(BIN)/python benchmarks/serial_link.py
+	$(BIN)/python benchmarks/channel.py
 
 clean:
 	rm -rf build runs
