@@ -92,6 +92,11 @@ class CoSimulation:
         self.quiet = quiet
         self._tmp_dirs: list[str] = []
         self.serial = SerialBridges(scenario.serial, scenario.time.mode, quiet)  # serial ports (socket:// URLs)
+        self.world = None  # master.world.world.WorldParticipant when the scenario has a [world]
+        if scenario.world is not None:
+            from master.world.world import WorldParticipant
+
+            self.world = WorldParticipant(scenario.world, scenario.time.start)
 
     # -- set-up -------------------------------------------------------------
     def _instantiate(self, members: dict[str, _Member]) -> None:
@@ -213,6 +218,8 @@ class CoSimulation:
                 meta["serial"] = self.serial.open({n: (m.fmu, m.multiple) for n, m in members.items()},
                                                   self.run_dir, t.start)
                 recorder.write_metadata(meta)
+            if self.world:
+                meta["world"] = self.world.open({n: m.fmu for n, m in members.items()}, t.start)
             self._read_outputs(members.values(), values)
             recorder.row(t.start, [values[s] for s in record_slots])
 
@@ -244,6 +251,8 @@ class CoSimulation:
                 t_next = start + (k + 1) * h
                 if self.serial:
                     self.serial.after_step(k, t_next)
+                if self.world:
+                    self.world.after_step(k, t_next)
                 recorder.row(t_next, [values[s] for s in record_slots])
                 steps_done = k + 1
                 c1 = time.perf_counter()
@@ -270,6 +279,8 @@ class CoSimulation:
                 progress.close()
             if self.serial:
                 meta["serial"] = self.serial.close()
+            if self.world:
+                meta["world"] = self.world.close()
             for m in members.values():
                 m.fmu.close()
             for d in self._tmp_dirs:

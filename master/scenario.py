@@ -21,7 +21,7 @@ from master.fmu_variables import check_value, family, unsupported_reason
 MODES = ("lockstep", "realtime")
 ORDERINGS = ("jacobi", "gauss-seidel")
 OVERRUN_POLICIES = ("catch-up", "skip", "slip", "abort")
-_TOP_KEYS = ("scenario", "time", "fmus", "connections", "record", "serial")
+_TOP_KEYS = ("scenario", "time", "fmus", "connections", "record", "serial", "world")
 _TIME_KEYS = ("start", "stop", "step", "mode", "ordering", "rtf", "overrun")
 _INSTANCE_KEYS = ("fmu", "parameters", "start", "step_multiple")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -80,6 +80,7 @@ class Scenario:
     record: list[tuple[str, str]]  # (instance, variable)
     raw: dict[str, Any]
     serial: dict[str, Any] = field(default_factory=dict)  # name -> master.serial_bridge.SerialSpec
+    world: Any = None  # master.world.layout.WorldLayout when the file has a [world] table
 
     def resolved(self) -> dict[str, Any]:
         """The scenario with defaults filled in and FMU paths resolved, for the run folder."""
@@ -96,6 +97,7 @@ class Scenario:
             "connections": [str(c) for c in self.connections],
             "record": {"variables": [f"{i}.{v}" for i, v in self.record]},
             **({"serial": {n: s.resolved() for n, s in self.serial.items()}} if self.serial else {}),
+            **({"world": self.world.resolved()} if self.world is not None else {}),
         }
 
 
@@ -188,10 +190,15 @@ class _Validator:
             from master.serial_bridge import parse_serial
 
             serial = parse_serial(raw["serial"], instances, connections, self.problem)
+        world = None
+        if "world" in raw:
+            from master.world.layout import parse_world
+
+            world = parse_world(raw["world"], instances, self.problem)
         if self.problems:
             raise ScenarioError(self.path, self.problems)
         return Scenario(self.path, str(name), str(description), time, instances, connections, record, raw,
-                        serial=serial)
+                        serial=serial, world=world)
 
     def number(self, table: dict, key: str, dotted: str, default: float, positive: bool = False) -> float:
         value = table.get(key, default)

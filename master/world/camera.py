@@ -1,0 +1,105 @@
+"""Pinhole cameras placed in the world, rendered with pybullet's CPU TinyRenderer.
+
+Conventions (OpenCV): camera axes x right, y down, z forward (optical axis).
+Image coordinates are continuous pixels: pixel (row i, column j) covers
+u in [j, j+1), v in [i, i+1); the principal point is the image centre
+(W/2, H/2). `fov_deg` is the horizontal field of view; pixels are square.
+A world point X (metres, x east, y north, z up) maps to the image through
+the 3x4 matrix P = K [R | t]: (u*w, v*w, w) = P (X, 1).
+
+Camera pose: `yaw` is the heading of the optical axis (deg CCW from +x),
+`pitch` its elevation (deg, negative looks down), `roll` a rotation about
+the optical axis (deg; positive turns the image's right side down).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as pb
+
+from master.world.layout import CameraSpec
+
+NEAR, FAR = 0.1, 500.0
+
+
+@dataclass
+class Frame:
+    camera: str
+    frame_id: int
+    t: float  # simulation time of the frame (s)
+    rgb: np.ndarray  # (H, W, 3) uint8
+    seg: np.ndarray  # (H, W) int32: pybullet body id under each pixel, -1 for none
+    P: np.ndarray  # 3x4 projection matrix K [R | t]
+    K: np.ndarray  # 3x3 intrinsics
+    R_wc: np.ndarray  # camera axes in world coordinates (columns x right, y down, z forward)
+    position: np.ndarray  # optical centre in the world (m)
+
+
+class Camera:
+    def __init__(self, spec: CameraSpec, client: int):
+        self.spec, self.client = spec, client
+        self.frame_id = 0
+        self.render_times: list[float] = []
+        yaw, pitch, roll = (math.radians(a) for a in (spec.yaw, spec.pitch, spec.roll))
+        f = np.array([math.cos(pitch) * math.cos(yaw), math.cos(pitch) * math.sin(yaw), math.sin(pitch)])
+        r = np.array([math.sin(yaw), -math.cos(yaw), 0.0])
+        d = np.cross(f, r)
+        r, d = math.cos(roll) * r + math.sin(roll) * d, -math.sin(roll) * r + math.cos(roll) * d
+        self.R_wc = np.column_stack([r, d, f])
+        self.position = np.array([spec.x, spec.y, spec.z], dtype=float)
+        W, H = spec.width, spec.height
+        fx = W / (2 * math.tan(math.radians(spec.fov_deg) / 2))
+        self.K = np.array([[fx, 0, W / 2], [0, fx, H / 2], [0, 0, 1.0]])
+        self._vfov_deg = math.degrees(2 * math.atan(H / (2 * fx)))
+        eye = self.position
+        self._view = pb.computeViewMatrix(eye.tolist(), (eye + f).tolist(), (-d).tolist(), physicsClientId=client)
+        self._proj = pb.computeProjectionMatrixFOV(self._vfov_deg, W / H, NEAR, FAR, physicsClientId=client)
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def projection_matrix(self) -> np.ndarray:
+        """3x4 P = K [R | t] with R = R_wc^T and t = -R position."""
+        R = self.R_wc.T
+        return self.K @ np.hstack([R, (-R @ self.position)[:, None]])
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points (N, 3) -> pixel coordinates (N, 2) and depth along the optical axis (N,)."""
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        h = self.projection_matrix() @ np.hstack([pts, np.ones((len(pts), 1))]).T
+        depth = h[2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = (h[:2] / depth).T
+        return uv, depth
+
+    def pixel_to_ground(self, u: float, v: float, z: float = 0.0) -> np.ndarray | None:
+        """The world point on the plane at height z seen at pixel (u, v); None above the horizon."""
+        ray = self.R_wc @ np.linalg.solve(self.K, np.array([u, v, 1.0]))
+        if ray[2] >= 0 and self.position[2] > z or ray[2] <= 0 and self.position[2] < z:
+            return None
+        s = (z - self.position[2]) / ray[2]
+        return self.position + s * ray
+
+    def render(self, t: float = 0.0) -> Frame:
+        """Render one frame at simulation time t; raises RuntimeError naming the camera on failure."""
+        import time
+
+        W, H = self.spec.width, self.spec.height
+        t0 = time.perf_counter()
+        try:
+            _, _, rgba, _, seg = pb.getCameraImage(W, H, self._view, self._proj, renderer=pb.ER_TINY_RENDERER,
+                                                   physicsClientId=self.client)
+        except pb.error as exc:
+            raise RuntimeError(f"camera {self.name!r}: render failed: {exc}") from exc
+        rgb = np.asarray(rgba, dtype=np.uint8).reshape(H, W, 4)[:, :, :3].copy()
+        seg = np.asarray(seg, dtype=np.int64).reshape(H, W)
+        # without the link-index flag pybullet stores the body id; -1 where nothing was hit
+        seg = np.where(seg < 0, -1, seg & ((1 << 24) - 1)).astype(np.int32)
+        self.render_times.append(time.perf_counter() - t0)
+        frame = Frame(self.name, self.frame_id, t, rgb, seg, self.projection_matrix(), self.K.copy(),
+                      self.R_wc.copy(), self.position.copy())
+        self.frame_id += 1
+        return frame

@@ -1,0 +1,348 @@
+"""The `[world]` table of a scenario: what the pybullet world is made of.
+
+Pure data and validation (no pybullet import), so `v2i validate` checks a
+world without building it. Frame: x east, y north, z up, metres; the
+intersection is centred at the origin, one road along x and one along y.
+
+    [world.intersection]            # all optional
+    road_width = 7.0                # carriageway width of each road (m)
+    lane_width = 3.5
+    arm_length = 120.0              # road length from the centre outwards (m); the map is
+                                    # the square |x|, |y| <= arm_length
+    sidewalk_width = 2.0
+
+    [[world.buildings]]             # axis-aligned boxes standing on the ground
+    name = "sw_corner"; x = -30.0; y = -30.0   # centre (m)
+    size_x = 48.0; size_y = 48.0; height = 15.0
+
+    [[world.cameras]]
+    name = "rsu_cam"; x = 8.0; y = -8.0; z = 6.0   # optical centre (m)
+    yaw = 135.0      # heading of the optical axis, deg CCW from +x
+    pitch = -20.0    # elevation of the optical axis, deg (negative looks down)
+    roll = 0.0       # about the optical axis, deg
+    width = 640; height = 480; fov_deg = 90.0  # horizontal field of view
+    rate_hz = 10.0
+
+    [world.vehicles.cav]            # key = a VehicleDynamics instance in [fmus]
+    length = 4.5; width = 1.8; height = 1.5
+    color = [0.1, 0.3, 0.8]         # RGB in 0..1
+    kind = "car"                    # or "emergency"
+    rear_overhang = 0.95            # rear bumper behind the rear axle (m); default
+                                    # (length - wheelbase) / 2 with the instance's wheelbase
+    [world.vehicles.cav.lidar]      # at most one vehicle carries a lidar
+    channels = 16; horizontal_samples = 1024; range = 100.0; rate_hz = 10.0
+    fov_up = 15.0; fov_down = -15.0  # deg; mount height = vehicle height + mount_above_roof
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+DEFAULT_WHEELBASE = 2.3927  # VehicleDynamics default (CommonRoad vehicle 1)
+VEHICLE_KINDS = ("car", "emergency")
+_TOP = ("intersection", "buildings", "cameras", "vehicles")
+_INTERSECTION = ("road_width", "lane_width", "arm_length", "sidewalk_width")
+_BUILDING = ("name", "x", "y", "size_x", "size_y", "height")
+_CAMERA = ("name", "x", "y", "z", "yaw", "pitch", "roll", "width", "height", "fov_deg", "rate_hz")
+_VEHICLE = ("length", "width", "height", "color", "kind", "rear_overhang", "lidar")
+_LIDAR = ("channels", "horizontal_samples", "range", "rate_hz", "fov_up", "fov_down", "mount_above_roof")
+_VEHICLE_DEFAULTS = {"car": (4.5, 1.8, 1.5, (0.15, 0.3, 0.8)), "emergency": (6.5, 2.3, 2.6, (0.9, 0.1, 0.1))}
+
+
+@dataclass
+class Intersection:
+    road_width: float = 7.0
+    lane_width: float = 3.5
+    arm_length: float = 120.0
+    sidewalk_width: float = 2.0
+
+
+@dataclass
+class Building:
+    name: str
+    x: float
+    y: float
+    size_x: float
+    size_y: float
+    height: float
+
+    @property
+    def bounds(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """(min corner, max corner) of the box."""
+        hx, hy = self.size_x / 2, self.size_y / 2
+        return (self.x - hx, self.y - hy, 0.0), (self.x + hx, self.y + hy, self.height)
+
+
+@dataclass
+class CameraSpec:
+    name: str
+    x: float
+    y: float
+    z: float
+    yaw: float = 0.0
+    pitch: float = 0.0
+    roll: float = 0.0
+    width: int = 640
+    height: int = 480
+    fov_deg: float = 90.0
+    rate_hz: float = 10.0
+
+
+@dataclass
+class LidarSpec:
+    channels: int = 16
+    horizontal_samples: int = 1024
+    range: float = 100.0
+    rate_hz: float = 10.0
+    fov_up: float = 15.0
+    fov_down: float = -15.0
+    mount_above_roof: float = 0.3
+
+
+@dataclass
+class VehicleSpec:
+    name: str  # the FMU instance it is posed from
+    length: float = 4.5
+    width: float = 1.8
+    height: float = 1.5
+    color: tuple[float, float, float] = (0.15, 0.3, 0.8)
+    kind: str = "car"
+    rear_overhang: float = 0.95
+    lidar: LidarSpec | None = None
+
+    @property
+    def centre_offset(self) -> float:
+        """Distance from the rear axle (the FMU's x, y) forward to the body centre."""
+        return self.length / 2 - self.rear_overhang
+
+
+@dataclass
+class WorldLayout:
+    intersection: Intersection = field(default_factory=Intersection)
+    buildings: list[Building] = field(default_factory=list)
+    cameras: list[CameraSpec] = field(default_factory=list)
+    vehicles: dict[str, VehicleSpec] = field(default_factory=dict)
+
+    @property
+    def half_extent(self) -> float:
+        return self.intersection.arm_length
+
+    def resolved(self) -> dict[str, Any]:
+        from dataclasses import asdict
+
+        return asdict(self)
+
+
+def _num(table: dict, key: str, where: str, default: Any, problem: Callable, *, positive=False,
+         nonneg=False, integer=False) -> Any:
+    value = table.get(key, default)
+    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+    if integer and ok and value != int(value):
+        ok = False
+    if not ok:
+        problem(f"{where}.{key}", f"expected {'an integer' if integer else 'a finite number'}, got {value!r}")
+        return default
+    if positive and value <= 0:
+        problem(f"{where}.{key}", f"must be > 0, got {value!r}")
+        return default
+    if nonneg and value < 0:
+        problem(f"{where}.{key}", f"must be >= 0, got {value!r}")
+        return default
+    return int(value) if integer else float(value)
+
+
+def _unknown(table: dict, allowed: tuple[str, ...], where: str, problem: Callable) -> None:
+    for key in table:
+        if key not in allowed:
+            problem(f"{where}.{key}", f"unknown key (expected one of: {', '.join(allowed)})")
+
+
+def _boxes_overlap(a: Building, b: Building) -> bool:
+    (ax0, ay0, _), (ax1, ay1, _) = a.bounds
+    (bx0, by0, _), (bx1, by1, _) = b.bounds
+    return ax0 < bx1 and bx0 < ax1 and ay0 < by1 and by0 < ay1  # touching faces are allowed
+
+
+def parse_world(table: Any, instances: dict, problem: Callable[[str, str], None]) -> WorldLayout | None:
+    """Validate the `[world]` table; every problem goes to `problem(key, message)`.
+
+    `instances` maps FMU instance names to master.scenario.Instance (its
+    `parameters` give a vehicle's start position and wheelbase).
+    """
+    if not isinstance(table, dict):
+        problem("world", f"expected a table, got {type(table).__name__}")
+        return None
+    n_before = [0]
+
+    def count(key: str, message: str) -> None:
+        n_before[0] += 1
+        problem(key, message)
+
+    p = count
+    for key in table:  # said as "world: unknown key 'x'" (tests/test_scenario.py expects the "world:" prefix)
+        if key not in _TOP:
+            p("world", f"unknown key {key!r} (expected one of: {', '.join(_TOP)})")
+    layout = WorldLayout()
+
+    inter = table.get("intersection", {})
+    if not isinstance(inter, dict):
+        p("world.intersection", f"expected a table, got {type(inter).__name__}")
+        inter = {}
+    _unknown(inter, _INTERSECTION, "world.intersection", p)
+    d = Intersection()
+    ix = Intersection(
+        road_width=_num(inter, "road_width", "world.intersection", d.road_width, p, positive=True),
+        lane_width=_num(inter, "lane_width", "world.intersection", d.lane_width, p, positive=True),
+        arm_length=_num(inter, "arm_length", "world.intersection", d.arm_length, p, positive=True),
+        sidewalk_width=_num(inter, "sidewalk_width", "world.intersection", d.sidewalk_width, p, nonneg=True))
+    if ix.lane_width > ix.road_width:
+        p("world.intersection.lane_width", f"wider than the road ({ix.lane_width} > road_width {ix.road_width})")
+    if ix.arm_length <= ix.road_width / 2 + ix.sidewalk_width:
+        p("world.intersection.arm_length", "must reach beyond the sidewalks (> road_width/2 + sidewalk_width)")
+    layout.intersection = ix
+    half = ix.arm_length
+
+    layout.buildings = _buildings(table.get("buildings", []), ix, p)
+    layout.cameras = _cameras(table.get("cameras", []), layout.buildings, half, p)
+    layout.vehicles = _vehicles(table.get("vehicles", {}), instances, half, p)
+    return layout if n_before[0] == 0 else None
+
+
+def _named_list(items: Any, where: str, problem: Callable) -> list[tuple[str, dict]]:
+    if not isinstance(items, list):
+        problem(where, f"expected an array of tables ([[{where}]]), got {type(items).__name__}")
+        return []
+    out = []
+    names: dict[str, str] = {}
+    for i, item in enumerate(items):
+        key = f"{where}[{i}]"
+        if not isinstance(item, dict):
+            problem(key, f"expected a table, got {type(item).__name__}")
+            continue
+        name = item.get("name")
+        if not isinstance(name, str) or not name:
+            problem(f"{key}.name", "required: a non-empty string")
+            name = f"{where.rsplit('.', 1)[-1]}{i}"
+        elif name in names:
+            problem(f"{key}.name", f"duplicate name {name!r} (also {names[name]})")
+        names[name] = key
+        out.append((key, item))
+    return out
+
+
+def _buildings(items: Any, ix: Intersection, p: Callable) -> list[Building]:
+    out: list[tuple[str, Building]] = []
+    for key, item in _named_list(items, "world.buildings", p):
+        _unknown(item, _BUILDING, key, p)
+        b = Building(str(item.get("name", "")), _num(item, "x", key, 0.0, p), _num(item, "y", key, 0.0, p),
+                     _num(item, "size_x", key, 1.0, p, positive=True),
+                     _num(item, "size_y", key, 1.0, p, positive=True),
+                     _num(item, "height", key, 1.0, p, positive=True))
+        (x0, y0, _), (x1, y1, _) = b.bounds
+        if max(abs(x0), abs(x1), abs(y0), abs(y1)) > ix.arm_length:
+            p(key, f"outside the map (|x|, |y| <= arm_length {ix.arm_length})")
+        hw = ix.road_width / 2
+        if (x0 < hw and x1 > -hw) or (y0 < hw and y1 > -hw):
+            p(key, f"stands on the carriageway (|x| or |y| < road_width/2 = {hw})")
+        for other_key, other in out:
+            if _boxes_overlap(b, other):
+                p(key, f"overlaps {other_key} ({other.name})")
+        out.append((key, b))
+    return [b for _, b in out]
+
+
+def _cameras(items: Any, buildings: list[Building], half: float, p: Callable) -> list[CameraSpec]:
+    out = []
+    d = CameraSpec("", 0, 0, 0)
+    for key, item in _named_list(items, "world.cameras", p):
+        _unknown(item, _CAMERA, key, p)
+        c = CameraSpec(str(item.get("name", "")), _num(item, "x", key, 0.0, p), _num(item, "y", key, 0.0, p),
+                       _num(item, "z", key, 5.0, p, positive=True),
+                       _num(item, "yaw", key, d.yaw, p), _num(item, "pitch", key, d.pitch, p),
+                       _num(item, "roll", key, d.roll, p),
+                       _num(item, "width", key, d.width, p, positive=True, integer=True),
+                       _num(item, "height", key, d.height, p, positive=True, integer=True),
+                       _num(item, "fov_deg", key, d.fov_deg, p, positive=True),
+                       _num(item, "rate_hz", key, d.rate_hz, p, positive=True))
+        if c.fov_deg >= 170:
+            p(f"{key}.fov_deg", f"must be < 170 (a pinhole camera), got {c.fov_deg}")
+        if not -90 < c.pitch < 90:
+            p(f"{key}.pitch", f"must be within (-90, 90) degrees, got {c.pitch}")
+        if max(abs(c.x), abs(c.y)) > half:
+            p(key, f"outside the map (|x|, |y| <= arm_length {half})")
+        for i, b in enumerate(buildings):
+            (x0, y0, z0), (x1, y1, z1) = b.bounds
+            if x0 <= c.x <= x1 and y0 <= c.y <= y1 and z0 <= c.z <= z1:
+                p(key, f"inside building world.buildings[{i}] ({b.name})")
+        out.append(c)
+    return out
+
+
+def _vehicles(table: Any, instances: dict, half: float, p: Callable) -> dict[str, VehicleSpec]:
+    if not isinstance(table, dict):
+        p("world.vehicles", f"expected a table of [world.vehicles.INSTANCE] tables, got {type(table).__name__}")
+        return {}
+    out: dict[str, VehicleSpec] = {}
+    lidar_on: str | None = None
+    for name, item in table.items():
+        key = f"world.vehicles.{name}"
+        if not isinstance(item, dict):
+            p(key, f"expected a table, got {type(item).__name__}")
+            continue
+        _unknown(item, _VEHICLE, key, p)
+        inst = instances.get(name)
+        if inst is None:
+            p(key, f"no FMU instance {name!r} in [fmus] (instances: {', '.join(instances) or 'none'})")
+        else:
+            outputs = {v.name for v in inst.model_description.modelVariables if v.causality == "output"}
+            missing = [v for v in ("x", "y", "yaw") if v not in outputs]
+            if missing:
+                p(key, f"instance {name!r} has no output(s) {', '.join(missing)} to pose the body from")
+        kind = item.get("kind", "car")
+        if kind not in VEHICLE_KINDS:
+            p(f"{key}.kind", f"expected one of {', '.join(VEHICLE_KINDS)}, got {kind!r}")
+            kind = "car"
+        dl, dw, dh, dc = _VEHICLE_DEFAULTS[kind]
+        length = _num(item, "length", key, dl, p, positive=True)
+        width = _num(item, "width", key, dw, p, positive=True)
+        height = _num(item, "height", key, dh, p, positive=True)
+        color = item.get("color", dc)
+        if (not isinstance(color, list | tuple) or len(color) != 3
+                or not all(isinstance(c, int | float) and not isinstance(c, bool) and 0 <= c <= 1 for c in color)):
+            p(f"{key}.color", f"expected [r, g, b] with each in 0..1, got {color!r}")
+            color = dc
+        params = inst.parameters if inst is not None else {}
+        wheelbase = params.get("wheelbase", DEFAULT_WHEELBASE)
+        overhang = _num(item, "rear_overhang", key, max((length - wheelbase) / 2, 0.0), p, nonneg=True)
+        if overhang >= length:
+            p(f"{key}.rear_overhang", f"must be shorter than the body ({overhang} >= length {length})")
+        v = VehicleSpec(name, length, width, height, tuple(float(c) for c in color), kind, overhang)
+        if inst is not None:
+            x0, y0 = params.get("x0", 0.0), params.get("y0", 0.0)
+            if max(abs(x0), abs(y0)) > half:
+                p(key, f"starts outside the map at ({x0}, {y0}) (|x|, |y| <= arm_length {half})")
+        if "lidar" in item:
+            v.lidar = _lidar(item["lidar"], f"{key}.lidar", p)
+            if lidar_on is not None:
+                p(f"{key}.lidar", f"only one vehicle carries a lidar (already on {lidar_on})")
+            lidar_on = key
+        out[name] = v
+    return out
+
+
+def _lidar(item: Any, key: str, p: Callable) -> LidarSpec | None:
+    if not isinstance(item, dict):
+        p(key, f"expected a table, got {type(item).__name__}")
+        return None
+    _unknown(item, _LIDAR, key, p)
+    d = LidarSpec()
+    spec = LidarSpec(_num(item, "channels", key, d.channels, p, positive=True, integer=True),
+                     _num(item, "horizontal_samples", key, d.horizontal_samples, p, positive=True, integer=True),
+                     _num(item, "range", key, d.range, p, positive=True),
+                     _num(item, "rate_hz", key, d.rate_hz, p, positive=True),
+                     _num(item, "fov_up", key, d.fov_up, p), _num(item, "fov_down", key, d.fov_down, p),
+                     _num(item, "mount_above_roof", key, d.mount_above_roof, p, nonneg=True))
+    if not -90 <= spec.fov_down <= spec.fov_up <= 90:
+        p(key, f"need -90 <= fov_down <= fov_up <= 90, got fov_down {spec.fov_down}, fov_up {spec.fov_up}")
+    return spec
