@@ -159,10 +159,9 @@ class Verifier:
         digest = signing_digest(oer.encode("ToBeSignedData", tbs), certificate.encoded)
         if not verify_digest(certificate.public_key(), digest, signed["signature"]):
             raise VerificationError(Rejection.BAD_SIGNATURE, f"signature does not verify with {certificate.name!r}'s key")
-        fingerprint = digest
-        if fingerprint in self._seen:
+        if digest in self._seen:
             raise VerificationError(Rejection.REPLAYED, "the same signed message was already accepted")
-        self._remember(fingerprint)
+        self._remember(digest)
         return Verified(payload, psid, generated, certificate.name, secured=True)
 
     def _signer_certificate(self, signer: tuple[str, Any], now_us: int) -> Certificate:
