@@ -115,8 +115,11 @@ def build_parser() -> argparse.ArgumentParser:
     from bridges.j2735 import cli as j2735_cli
     from bridges.security import cli as pki_cli
 
+    from master.world import dataset_cli
+
     j2735_cli.add_parser(sub)
     pki_cli.add_parser(sub)
+    dataset_cli.add_parser(sub)
     return p
 
 

@@ -24,6 +24,30 @@ from master.world.layout import CameraSpec
 NEAR, FAR = 0.1, 500.0
 
 
+@dataclass(frozen=True)
+class Lighting:
+    """The TinyRenderer's single directional light (pybullet getCameraImage's light* arguments).
+
+    `direction` points from the scene towards the light (x east, y north, z up);
+    the default (None everywhere) is pybullet's own light.
+    """
+    direction: tuple[float, float, float] | None = None
+    color: tuple[float, float, float] | None = None
+    ambient: float | None = None
+    diffuse: float | None = None
+    specular: float | None = None
+    shadow: bool = False
+
+    def arguments(self) -> dict:
+        args = {"shadow": int(self.shadow)}
+        for key, name in (("direction", "lightDirection"), ("color", "lightColor"), ("ambient", "lightAmbientCoeff"),
+                          ("diffuse", "lightDiffuseCoeff"), ("specular", "lightSpecularCoeff")):
+            value = getattr(self, key)
+            if value is not None:
+                args[name] = list(value) if isinstance(value, tuple) else float(value)
+        return args
+
+
 @dataclass
 class Frame:
     camera: str
@@ -38,7 +62,9 @@ class Frame:
 
 
 class Camera:
-    def __init__(self, spec: CameraSpec, client: int):
+    """A pinhole camera; with `client=None` it only projects (no renderer is touched)."""
+
+    def __init__(self, spec: CameraSpec, client: int | None):
         self.spec, self.client = spec, client
         self.frame_id = 0
         self.render_times: list[float] = []
@@ -53,9 +79,10 @@ class Camera:
         fx = W / (2 * math.tan(math.radians(spec.fov_deg) / 2))
         self.K = np.array([[fx, 0, W / 2], [0, fx, H / 2], [0, 0, 1.0]])
         self._vfov_deg = math.degrees(2 * math.atan(H / (2 * fx)))
-        eye = self.position
-        self._view = pb.computeViewMatrix(eye.tolist(), (eye + f).tolist(), (-d).tolist(), physicsClientId=client)
-        self._proj = pb.computeProjectionMatrixFOV(self._vfov_deg, W / H, NEAR, FAR, physicsClientId=client)
+        if client is not None:
+            eye = self.position
+            self._view = pb.computeViewMatrix(eye.tolist(), (eye + f).tolist(), (-d).tolist(), physicsClientId=client)
+            self._proj = pb.computeProjectionMatrixFOV(self._vfov_deg, W / H, NEAR, FAR, physicsClientId=client)
 
     @property
     def name(self) -> str:
@@ -83,15 +110,18 @@ class Camera:
         s = (z - self.position[2]) / ray[2]
         return self.position + s * ray
 
-    def render(self, t: float = 0.0) -> Frame:
+    def render(self, t: float = 0.0, lighting: Lighting | None = None) -> Frame:
         """Render one frame at simulation time t; raises RuntimeError naming the camera on failure."""
         import time
 
+        if self.client is None:
+            raise RuntimeError(f"camera {self.name!r}: made for projection only (no pybullet client to render with)")
         W, H = self.spec.width, self.spec.height
+        light = (lighting or Lighting()).arguments()
         t0 = time.perf_counter()
         try:
             _, _, rgba, _, seg = pb.getCameraImage(W, H, self._view, self._proj, renderer=pb.ER_TINY_RENDERER,
-                                                   physicsClientId=self.client)
+                                                   physicsClientId=self.client, **light)
         except pb.error as exc:
             raise RuntimeError(f"camera {self.name!r}: render failed: {exc}") from exc
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(H, W, 4)[:, :, :3].copy()

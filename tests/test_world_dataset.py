@@ -1,0 +1,196 @@
+"""`v2i dataset`: reproducible labelled frames whose labels match the renderer's pixels."""
+from __future__ import annotations
+
+import colorsys
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from master.cli import main
+from master.scenario import load_scenario
+from master.world.camera import Lighting
+from master.world.dataset import (CATEGORY_ID, DatasetError, HELDOUT, TRAIN, PlacedVehicle, Sample, draw_sample,
+                                  make_dataset, rectangles_overlap, render_sample)
+from master.world.layout import VehicleSpec
+
+ROOT = Path(__file__).resolve().parent.parent
+CASE = ROOT / "scenarios" / "ima_case_study.toml"
+
+
+@pytest.fixture(scope="module")
+def layout():
+    return load_scenario(CASE).world
+
+
+@pytest.fixture(scope="module")
+def small_dataset(tmp_path_factory, layout):
+    out = tmp_path_factory.mktemp("ds") / "train"
+    coco = make_dataset(layout, out, frames=6, seed=11)
+    return out, coco
+
+
+def _no_shadow(sample: Sample) -> Sample:
+    return replace(sample, lighting=replace(sample.lighting, shadow=False))
+
+
+def test_labels_match_the_pixels_each_vehicle_changes(layout):
+    """Removing one vehicle changes exactly the pixels inside its label's box, tight on all four sides."""
+    checked = 0
+    for index in range(4):
+        sample = _no_shadow(draw_sample(index, 5, "train", layout, layout.cameras[0]))
+        frame, labels = render_sample(sample, layout, occlusion=False)
+        for label in labels:
+            others = [v for v in sample.vehicles if v.spec.name != label["vehicle"]]
+            without, _ = render_sample(replace(sample, vehicles=others), layout, occlusion=False)
+            changed = np.any(frame.rgb != without.rgb, axis=2)
+            rows, cols = np.flatnonzero(changed.any(axis=1)), np.flatnonzero(changed.any(axis=0))
+            assert len(rows), f"vehicle {label['vehicle']} of frame {index} changes no pixel"
+            x, y, w, h = label["bbox"]
+            assert (cols[0], rows[0], cols[-1] + 1, rows[-1] + 1) == (x, y, x + w, y + h), label["vehicle"]
+            kind = next(v.spec.kind for v in sample.vehicles if v.spec.name == label["vehicle"])
+            assert label["category_id"] == CATEGORY_ID[kind]
+            checked += 1
+    assert checked >= 6
+
+
+def test_same_seed_same_dataset_any_jobs_other_seed_differs(small_dataset, layout, tmp_path):
+    out, coco = small_dataset
+    again = make_dataset(layout, tmp_path / "again", frames=6, seed=11, jobs=2)
+    assert again == coco
+    for image in coco["images"]:
+        assert (out / image["file_name"]).read_bytes() == (tmp_path / "again" / image["file_name"]).read_bytes()
+    other = make_dataset(layout, tmp_path / "other", frames=6, seed=12)
+    assert other["annotations"] != coco["annotations"]
+
+
+def test_coco_structure_and_files(small_dataset):
+    out, coco = small_dataset
+    on_disk = json.loads((out / "annotations.json").read_text())
+    assert on_disk == coco
+    assert [c["name"] for c in coco["categories"]] == ["car", "emergency"]
+    assert coco["info"]["seed"] == 11 and coco["info"]["frames"] == 6
+    lines = (out / "frames.jsonl").read_text().splitlines()
+    assert len(lines) == 6  # written as it went, one line per frame
+    images = {im["id"]: im for im in coco["images"]}
+    assert len(images) == 6
+    ids = [a["id"] for a in coco["annotations"]]
+    assert len(set(ids)) == len(ids) and len(ids) > 6
+    for im in coco["images"]:
+        with Image.open(out / im["file_name"]) as png:
+            assert png.size == (im["width"], im["height"]) and png.mode == "RGB"
+        P = np.array(im["camera"]["P"])
+        assert P.shape == (3, 4) and np.all(np.isfinite(P))
+    for a in coco["annotations"]:
+        im = images[a["image_id"]]
+        x, y, w, h = a["bbox"]
+        assert 0 <= x and 0 <= y and w > 0 and h > 0 and x + w <= im["width"] and y + h <= im["height"]
+        assert a["area"] == w * h and a["visible_pixels"] <= w * h
+        assert a["occlusion"] is None or 0.0 <= a["occlusion"] <= 1.0
+        # the vehicle's ground centre projects into (or near) its projected 3D box
+        P = np.array(im["camera"]["P"])
+        hx = P @ np.array([*a["position"], a["size"][2] / 2, 1.0])
+        if hx[2] > 0 and a["full_bbox"] is not None:
+            u, v = hx[:2] / hx[2]
+            fx, fy, fw, fh = a["full_bbox"]
+            if 0 <= u < im["width"] and 0 <= v < im["height"]:
+                assert fx - 1 <= u <= fx + fw + 1 and fy - 1 <= v <= fy + fh + 1
+
+
+def test_frame_without_vehicles_has_no_labels(layout):
+    sample = replace(draw_sample(0, 1, "train", layout, layout.cameras[0]), vehicles=[])
+    frame, labels = render_sample(sample, layout)
+    assert labels == [] and frame.rgb.shape == (480, 640, 3)
+
+
+def test_vehicle_behind_another_is_partly_occluded(layout):
+    cam = layout.cameras[0]
+    base = _no_shadow(draw_sample(0, 1, "train", layout, cam))
+    sample = replace(base, camera=cam, lighting=Lighting())
+    # both in the westbound lane south-west of the camera's view centre, one behind the other along the sight line
+    near = PlacedVehicle(VehicleSpec("near", 6.5, 2.4, 2.8, (0.9, 0.1, 0.1), "emergency", 1.3), -2.0, 1.75, math.pi, 0)
+    far = PlacedVehicle(VehicleSpec("far", 4.5, 1.8, 1.5, (0.2, 0.6, 0.2), "car", 0.9), -14.0, 1.75, math.pi, 0)
+    _, labels = render_sample(replace(sample, vehicles=[near, far]), layout)
+    by = {a["vehicle"]: a for a in labels}
+    assert by["near"]["occlusion"] == pytest.approx(0.0, abs=0.01)
+    assert 0.05 < by["far"]["occlusion"] < 1.0
+    alone, labels_alone = render_sample(replace(sample, vehicles=[far]), layout)
+    full = labels_alone[0]["visible_pixels"]
+    assert by["far"]["occlusion"] == pytest.approx(1 - by["far"]["visible_pixels"] / full, abs=1e-3)
+
+
+def test_heldout_draws_from_ranges_train_never_uses(layout):
+    def drawn(variant, n=60):
+        samples = [draw_sample(i, 2, variant, layout, layout.cameras[0]) for i in range(n)]
+        cars = [v.spec for s in samples for v in s.vehicles if v.spec.kind == "car"]
+        hues = [colorsys.rgb_to_hsv(*c.color)[0] for c in cars if len(set(c.color)) > 1]
+        return samples, cars, hues
+
+    _, train_cars, train_hues = drawn("train")
+    held_samples, held_cars, held_hues = drawn("heldout")
+
+    def inside(value, bands):
+        return any(lo <= value <= hi for lo, hi in bands)
+
+    assert all(inside(c.length, TRAIN.car_length) for c in train_cars)
+    assert not any(inside(c.length, TRAIN.car_length[:1]) and c.length not in (3.8, 5.0) for c in held_cars)
+    assert all(inside(h, HELDOUT.car_hues) for h in held_hues)
+    assert not any(0.125 < h < 0.195 or 0.465 < h < 0.535 for h in train_hues)
+    base_z, base_fov = layout.cameras[0].z, layout.cameras[0].fov_deg
+    for s in held_samples:
+        dz, dfov = s.camera.z - base_z, s.camera.fov_deg - base_fov
+        assert not (-1.0 < dz < 1.5 and -10.0 < dfov < 8.0), "a heldout camera inside the training ranges"
+
+
+def test_vehicles_do_not_overlap(layout):
+    from master.world.dataset import _footprint
+
+    for i in range(40):
+        vs = draw_sample(i, 9, "train", layout, layout.cameras[0]).vehicles
+        for a in range(len(vs)):
+            for b in range(a + 1, len(vs)):
+                assert not rectangles_overlap(_footprint(vs[a]), _footprint(vs[b]))
+
+
+def test_rectangles_overlap_basic():
+    sq = np.array([(0, 0), (1, 0), (1, 1), (0, 1)], dtype=float)
+    assert rectangles_overlap(sq, sq + 0.5)
+    assert not rectangles_overlap(sq, sq + [1.2, 0])
+    assert rectangles_overlap(sq, sq + [1.2, 0], margin=0.5)
+    diamond = np.array([(1.6, 0.5), (2.1, 1.0), (1.6, 1.5), (1.1, 1.0)])
+    assert not rectangles_overlap(sq, diamond)
+
+
+def test_bad_arguments_name_the_problem(layout, tmp_path):
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "x").write_text("keep me")
+    with pytest.raises(DatasetError, match="not empty.*--force"):
+        make_dataset(layout, tmp_path / "full", frames=1, seed=0)
+    assert (tmp_path / "full" / "x").read_text() == "keep me"
+    with pytest.raises(DatasetError, match="camera: no camera 'nope'.*rsu_cam"):
+        make_dataset(layout, tmp_path / "a", frames=1, seed=0, camera="nope")
+    with pytest.raises(DatasetError, match="frames: must be >= 1"):
+        make_dataset(layout, tmp_path / "b", frames=0, seed=0)
+    with pytest.raises(DatasetError, match="variant"):
+        make_dataset(layout, tmp_path / "c", frames=1, seed=0, variant="test")
+
+
+def test_cli(tmp_path, capsys, write_scenario):
+    assert main(["dataset", "--scenario", str(CASE), "--out", str(tmp_path / "d"), "--frames", "2", "--seed", "4",
+                 "--quiet", "--no-occlusion"]) == 0
+    assert "2 frames" in capsys.readouterr().out
+    coco = json.loads((tmp_path / "d" / "annotations.json").read_text())
+    assert all(a["occlusion"] is None for a in coco["annotations"])
+    no_world = write_scenario("""
+        [time]
+        stop = 1.0
+        step = 0.1
+        [fmus.car]
+        fmu = "{vehicle}"
+    """)
+    assert main(["dataset", "--scenario", str(no_world), "--out", str(tmp_path / "e"), "--quiet"]) == 2
+    assert "no [world]" in capsys.readouterr().err
