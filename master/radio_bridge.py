@@ -1,0 +1,312 @@
+"""The V2X air: frames the apps transmit reach each receiver through the channel model, or not.
+
+Apps publish encoded frames (J2735 in the security envelope) on
+`v2x/tx/<station>`. For each other station within `max_range_m` the air asks a
+channel model (the V2XChannel FMU's model code, one instance per transmitter,
+so each has its own access schedule) whether the frame is decoded and how long
+it took, with positions from the world (vehicles follow their FMU) and walls
+and metres inside buildings from the world's line-of-sight query. A delivered
+frame is published on `v2x/rx/<receiver>` at its simulated arrival time; a
+dropped one is only logged. Every frame is logged as sent, and per receiver as
+dropped (with the reason) or delivered (with its times).
+
+`mode = "bypass"` is for real radios: apps hear each other directly and the
+air only logs what was sent.
+
+    [v2x]
+    mode = "channel"            # or "bypass"
+    max_range_m = 1000.0
+    [v2x.channel]               # V2XChannel parameters (fmus/channel/model.py ChannelParams)
+    technology = "dsrc"
+    [v2x.stations.rsu1]
+    position = [6.5, 6.5, 6.0]  # antenna base (m); the channel adds its antenna height
+    [v2x.stations.cav]
+    vehicle = "cav"             # follows this VehicleDynamics instance
+"""
+from __future__ import annotations
+
+import heapq
+import itertools
+import math
+import threading
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Callable
+
+MODES = ("channel", "bypass")
+_KEYS = ("mode", "max_range_m", "channel", "stations")
+_STATION_KEYS = ("position", "vehicle")
+TX_KEY, RX_KEY = "v2x/tx/{}", "v2x/rx/{}"
+
+
+@dataclass
+class Station:
+    name: str
+    position: tuple[float, float, float] | None = None  # fixed stations
+    vehicle: str | None = None  # or one that follows a vehicle instance
+
+
+@dataclass
+class V2xSpec:
+    mode: str = "channel"
+    max_range_m: float = 1000.0
+    channel: dict[str, Any] = field(default_factory=dict)  # ChannelParams overrides
+    stations: dict[str, Station] = field(default_factory=dict)
+
+    def resolved(self) -> dict[str, Any]:
+        return {"mode": self.mode, "max_range_m": self.max_range_m, "channel": dict(self.channel),
+                "stations": {n: {k: v for k, v in (("position", list(s.position) if s.position else None),
+                                                    ("vehicle", s.vehicle)) if v is not None}
+                             for n, s in self.stations.items()}}
+
+
+def parse_v2x(table: Any, instances: dict, problem: Callable[[str, str], None]) -> V2xSpec | None:
+    """Validate `[v2x]`; each problem goes to `problem(key, message)`."""
+    from fmus.channel.model import ChannelParams
+
+    if not isinstance(table, dict):
+        problem("v2x", f"expected a table, got {type(table).__name__}")
+        return None
+    bad = [0]
+
+    def p(key: str, msg: str) -> None:
+        bad[0] += 1
+        problem(key, msg)
+
+    for key in table:
+        if key not in _KEYS:
+            p(f"v2x.{key}", f"unknown key (expected one of: {', '.join(_KEYS)})")
+    spec = V2xSpec()
+    spec.mode = table.get("mode", "channel")
+    if spec.mode not in MODES:
+        p("v2x.mode", f"expected one of {', '.join(MODES)}, got {spec.mode!r}")
+    rng = table.get("max_range_m", spec.max_range_m)
+    if isinstance(rng, bool) or not isinstance(rng, (int, float)) or not math.isfinite(rng) or rng <= 0:
+        p("v2x.max_range_m", f"expected a number > 0, got {rng!r}")
+    else:
+        spec.max_range_m = float(rng)
+    channel = table.get("channel", {})
+    if not isinstance(channel, dict):
+        p("v2x.channel", f"expected a table of V2XChannel parameters, got {type(channel).__name__}")
+    else:
+        names = {f.name: f for f in fields(ChannelParams)}
+        for key, value in channel.items():
+            if key not in names:
+                p(f"v2x.channel.{key}", "unknown channel parameter (see fmus/channel/model.py ChannelParams)")
+        try:
+            replace(ChannelParams(), **{k: v for k, v in channel.items() if k in names}).validate()
+            spec.channel = dict(channel)
+        except (ValueError, TypeError) as exc:
+            p("v2x.channel", str(exc))
+    stations = table.get("stations", {})
+    if not isinstance(stations, dict) or not stations:
+        p("v2x.stations", "expected at least one [v2x.stations.NAME] table")
+        stations = {}
+    for name, item in stations.items():
+        key = f"v2x.stations.{name}"
+        if not isinstance(item, dict):
+            p(key, f"expected a table, got {type(item).__name__}")
+            continue
+        for k in item:
+            if k not in _STATION_KEYS:
+                p(f"{key}.{k}", f"unknown key (expected one of: {', '.join(_STATION_KEYS)})")
+        if ("position" in item) == ("vehicle" in item):
+            p(key, "give exactly one of position = [x, y, z] or vehicle = INSTANCE")
+            continue
+        if "position" in item:
+            pos = item["position"]
+            if (not isinstance(pos, list) or len(pos) != 3
+                    or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                               for v in pos)):
+                p(f"{key}.position", f"expected [x, y, z] in metres, got {pos!r}")
+                continue
+            spec.stations[name] = Station(name, position=tuple(float(v) for v in pos))
+        else:
+            vehicle = item["vehicle"]
+            inst = instances.get(vehicle) if isinstance(vehicle, str) else None
+            if inst is None:
+                p(f"{key}.vehicle", f"no FMU instance {vehicle!r} in [fmus] (instances: {', '.join(instances)})")
+                continue
+            outputs = {v.name for v in inst.model_description.modelVariables if v.causality == "output"}
+            if not {"x", "y"} <= outputs:
+                p(f"{key}.vehicle", f"instance {vehicle!r} has no x, y outputs to place the station")
+                continue
+            spec.stations[name] = Station(name, vehicle=vehicle)
+    return spec if bad[0] == 0 else None
+
+
+@dataclass(order=True)
+class _Pending:
+    arrival: float
+    order: int
+    receiver: str = field(compare=False)
+    sender: str = field(compare=False)
+    seq: int = field(compare=False)
+    t_tx: float = field(compare=False)
+    payload: bytes = field(compare=False)
+    stamps: dict = field(compare=False)
+
+
+@dataclass
+class Delivery:
+    receiver: str
+    sender: str
+    seq: int
+    t_tx: float
+    arrival: float
+    payload: bytes
+    stamps: dict
+
+
+class Air:
+    """Channel decisions and the queue of frames in flight (no transport: testable alone).
+
+    `position(station, t)` gives a station's antenna base (x, y, z);
+    `obstruction(p, q)` gives (blocked, walls, metres inside) for the straight path.
+    """
+
+    def __init__(self, spec: V2xSpec, position: Callable[[str, float], tuple[float, float, float]],
+                 obstruction: Callable[[Any, Any], tuple[bool, int, float]] | None = None,
+                 log: Callable[[dict], None] | None = None):
+        from fmus.channel.model import ChannelModel, ChannelParams
+
+        self.spec, self.position = spec, position
+        self.obstruction = obstruction or (lambda p, q: (False, 0, 0.0))
+        self.log = log or (lambda event: None)
+        base = replace(ChannelParams(), **spec.channel)
+        names = sorted(spec.stations)
+        self.ids = {n: i for i, n in enumerate(names)}
+        # one radio per transmitter: its own seed, so access schedules and fading differ between stations
+        self.models = {n: ChannelModel(replace(base, seed=base.seed + 7919 * i)).prepare() for n, i in self.ids.items()}
+        self._heap: list[_Pending] = []
+        self._order = itertools.count()
+        self.counts = {"sent": 0, "delivered": 0, "dropped": 0, "out_of_range": 0, "unknown_sender": 0}
+
+    def transmit(self, sender: str, seq: int, t_tx: float, payload: bytes, stamps: dict | None = None) -> None:
+        """A frame on the air at t_tx: decide its fate at every other station now."""
+        if sender not in self.spec.stations:
+            self.counts["unknown_sender"] += 1
+            self.log({"event": "v2x_rejected", "t": t_tx, "from": sender, "seq": seq,
+                      "reason": f"unknown station {sender!r} (stations: {', '.join(self.spec.stations)})"})
+            return
+        self.counts["sent"] += 1
+        self.log({"event": "v2x_sent", "t": t_tx, "from": sender, "seq": seq, "bytes": len(payload)})
+        if self.spec.mode == "bypass":
+            return
+        tx = self.position(sender, t_tx)
+        model = self.models[sender]
+        h_tx, h_rx = model.p.tx_antenna_height_m, model.p.rx_antenna_height_m
+        for receiver in self.spec.stations:
+            if receiver == sender:
+                continue
+            rx = self.position(receiver, t_tx)
+            d = math.dist(tx, rx)
+            if d > self.spec.max_range_m:
+                self.counts["out_of_range"] += 1
+                self.log({"event": "v2x_dropped", "t": t_tx, "from": sender, "to": receiver, "seq": seq,
+                          "reason": "out_of_range", "distance_m": round(d, 2)})
+                continue
+            _, walls, inside = self.obstruction((tx[0], tx[1], tx[2] + h_tx), (rx[0], rx[1], rx[2] + h_rx))
+            link = model.evaluate_one(tx, rx, walls, inside, packet_bytes=max(len(payload), 1), seq=seq,
+                                      tx_id=self.ids[sender], rx_id=self.ids[receiver])
+            facts = {"distance_m": round(link["distance_m"], 2), "walls": int(walls),
+                     "rx_power_dbm": round(link["rx_power_dbm"], 2), "snr_db": round(link["snr_db"], 2)}
+            if not link["delivered"]:
+                self.counts["dropped"] += 1
+                self.log({"event": "v2x_dropped", "t": t_tx, "from": sender, "to": receiver, "seq": seq,
+                          "reason": "channel", "per": round(link["per"], 4), **facts})
+                continue
+            arrival = t_tx + float(link["latency_s"])
+            heapq.heappush(self._heap, _Pending(arrival, next(self._order), receiver, sender, seq, t_tx, payload,
+                                                dict(stamps or {})))
+            self.log({"event": "v2x_scheduled", "t": t_tx, "from": sender, "to": receiver, "seq": seq,
+                      "arrival": arrival, **facts})
+
+    def due(self, t: float) -> list[Delivery]:
+        """Frames whose arrival time is <= t, in arrival order."""
+        out = []
+        while self._heap and self._heap[0].arrival <= t + 1e-12:
+            p = heapq.heappop(self._heap)
+            self.counts["delivered"] += 1
+            self.log({"event": "v2x_delivered", "t": p.arrival, "from": p.sender, "to": p.receiver, "seq": p.seq,
+                      "t_tx": p.t_tx, "latency_s": p.arrival - p.t_tx})
+            out.append(Delivery(p.receiver, p.sender, p.seq, p.t_tx, p.arrival, p.payload, p.stamps))
+        return out
+
+    @property
+    def in_flight(self) -> int:
+        return len(self._heap)
+
+
+class RadioBridge:
+    """The air in the master's loop: takes frames from `v2x/tx/*` on the bus, delivers to `v2x/rx/<name>`.
+
+    Frames received from the bus are buffered by a subscriber thread and put on
+    the air in the master's thread at the next step, at their own t_sim (a
+    frame stamped earlier than the step already done is put on the air at once
+    and counted as late). Hooks: open / after_step / close, like the serial and
+    world bridges.
+    """
+
+    def __init__(self, spec: V2xSpec, bus, log: Callable[[dict], None] | None = None):
+        self.spec, self.bus = spec, bus
+        self.log = log or (lambda e: None)
+        self.air: Air | None = None
+        self._inbox: list[Any] = []
+        self._lock = threading.Lock()
+        self._sub = None
+        self._fmus: dict[str, Any] = {}
+        self._getters: dict[str, Any] = {}
+        self._world = None
+        self._t_done = -math.inf
+        self._waiting: list[tuple] = []  # (t_sim, sender, seq, order, message) not yet on the air
+        self._order = itertools.count()
+        self.late = 0
+
+    def open(self, fmus: dict[str, Any], t: float, world=None) -> dict[str, Any]:
+        self._world = world
+        for st in self.spec.stations.values():
+            if st.vehicle is not None:
+                fmu = fmus[st.vehicle]
+                self._getters[st.name] = fmu.accessor(
+                    fmu.access_key("x"), [fmu.variables[n].valueReference for n in ("x", "y")], setter=False)
+        obstruction = world.line_of_sight if world is not None else None
+        self.air = Air(self.spec, self._position, obstruction, self.log)
+        self._sub = self.bus.subscribe(TX_KEY.format("*"), callback=self._on_tx)
+        self._t_done = t
+        return {"mode": self.spec.mode, "stations": list(self.spec.stations)}
+
+    def _position(self, name: str, t: float) -> tuple[float, float, float]:
+        st = self.spec.stations[name]
+        if st.position is not None:
+            return st.position
+        x, y = self._getters[name]()[:2]
+        return (float(x), float(y), 0.0)
+
+    def _on_tx(self, msg) -> None:
+        with self._lock:
+            self._inbox.append(msg)
+
+    def after_step(self, k: int, t_next: float) -> None:
+        with self._lock:
+            inbox, self._inbox = self._inbox, []
+        for msg in inbox:
+            heapq.heappush(self._waiting, (msg.t_sim, msg.sender, msg.seq, next(self._order), msg))
+        air = self.air
+        # frames stamped up to the end of this step go on the air now; later ones wait for their time
+        while self._waiting and self._waiting[0][0] <= t_next + 1e-12:
+            msg = heapq.heappop(self._waiting)[-1]
+            if msg.t_sim < self._t_done - 1e-9:
+                self.late += 1
+            station = msg.key.rsplit("/", 1)[-1]
+            air.transmit(station, msg.seq, max(msg.t_sim, self._t_done), msg.payload, msg.stamps)
+        for d in air.due(t_next):
+            self.bus.publish(RX_KEY.format(d.receiver), d.payload, d.arrival, stamps=d.stamps)
+        self._t_done = t_next
+
+    def close(self) -> dict[str, Any]:
+        if self._sub is not None:
+            self._sub.close()
+            self._sub = None
+        air = self.air
+        return {"mode": self.spec.mode, **(air.counts if air else {}), "late": self.late,
+                "in_flight_at_end": air.in_flight if air else 0}
