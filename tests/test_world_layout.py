@@ -95,3 +95,24 @@ def test_validate_cli_reports_world_key(write_scenario, capsys):
     assert main(["validate", str(path)]) == 2
     out = capsys.readouterr()
     assert "world.buildings[0].size_x: must be > 0" in out.out + out.err
+
+
+def test_resolved_world_loads_again(write_scenario, tmp_path):
+    """The run folder's scenario.resolved.toml, world included (signals, gnss), is a valid scenario."""
+    import tomli_w
+
+    sc = load_scenario(write_scenario(BASE + BUILDING_A + """
+[world.vehicles.car]
+color = [0.2, 0.4, 0.6]
+[world.vehicles.car.gnss]
+sigma_h = 1.5
+[world.vehicles.car.lidar]
+channels = 8
+"""))
+    from master.recorder import _toml_safe
+
+    path = tmp_path / "resolved.toml"
+    path.write_text(tomli_w.dumps(_toml_safe(sc.resolved())))
+    again = load_scenario(path)
+    assert again.world == sc.world
+    assert again.world.vehicles["car"].gnss.sigma_h == 1.5

@@ -32,6 +32,19 @@ intersection is centred at the origin, one road along x and one along y.
     [world.vehicles.cav.lidar]      # at most one vehicle carries a lidar
     channels = 16; horizontal_samples = 1024; range = 100.0; rate_hz = 10.0
     fov_up = 15.0; fov_down = -15.0  # deg; mount height = vehicle height + mount_above_roof
+    [world.vehicles.cav.gnss]       # a GNSS receiver on the roof (any vehicle may carry one)
+    rate_hz = 10.0                  # fixes per second
+    sigma_h = 0.5; sigma_v = 1.0    # white noise std per horizontal axis / vertical (m)
+    sigma_heading_deg = 1.0; sigma_speed = 0.05   # heading (deg) and speed (m/s) noise std
+    bias_walk_h = 0.0; bias_walk_v = 0.0          # random-walk bias (m per sqrt(s)); 0 = none
+    seed = 0                        # with the vehicle's name: the noise stream
+
+    [[world.signals]]               # a traffic-light head: pole, housing, red/yellow/green lamps
+    name = "nb_head"; x = 5.5; y = 5.5      # pole foot (m)
+    yaw = 270.0                     # direction the lamps face, deg CCW from +x (toward the drivers)
+    signal_group = 2                # 1..8: shows the controller's state_2 output
+    instance = "tlc"                # a TrafficLightController in [fmus]; default: the only one
+    height = 4.5                    # lamp housing centre above ground (m)
 """
 from __future__ import annotations
 
@@ -41,12 +54,16 @@ from typing import Any, Callable
 
 DEFAULT_WHEELBASE = 2.3927  # VehicleDynamics default (CommonRoad vehicle 1)
 VEHICLE_KINDS = ("car", "emergency")
-_TOP = ("intersection", "buildings", "cameras", "vehicles")
+TLC_MODEL = "TrafficLightController"
+_TOP = ("intersection", "buildings", "cameras", "vehicles", "signals")
 _INTERSECTION = ("road_width", "lane_width", "arm_length", "sidewalk_width")
 _BUILDING = ("name", "x", "y", "size_x", "size_y", "height")
 _CAMERA = ("name", "x", "y", "z", "yaw", "pitch", "roll", "width", "height", "fov_deg", "rate_hz")
-_VEHICLE = ("length", "width", "height", "color", "kind", "rear_overhang", "lidar")
+_VEHICLE = ("length", "width", "height", "color", "kind", "rear_overhang", "lidar", "gnss")
 _LIDAR = ("channels", "horizontal_samples", "range", "rate_hz", "fov_up", "fov_down", "mount_above_roof")
+_GNSS = ("rate_hz", "sigma_h", "sigma_v", "sigma_heading_deg", "sigma_speed", "bias_walk_h", "bias_walk_v",
+         "seed")
+_SIGNAL = ("name", "x", "y", "yaw", "signal_group", "instance", "height")
 _VEHICLE_DEFAULTS = {"car": (4.5, 1.8, 1.5, (0.15, 0.3, 0.8)), "emergency": (6.5, 2.3, 2.6, (0.9, 0.1, 0.1))}
 
 
@@ -101,6 +118,29 @@ class LidarSpec:
 
 
 @dataclass
+class GnssSpec:
+    rate_hz: float = 10.0
+    sigma_h: float = 0.5
+    sigma_v: float = 1.0
+    sigma_heading_deg: float = 1.0
+    sigma_speed: float = 0.05
+    bias_walk_h: float = 0.0
+    bias_walk_v: float = 0.0
+    seed: int = 0
+
+
+@dataclass
+class SignalSpec:
+    name: str
+    x: float
+    y: float
+    yaw: float  # deg: the direction the lamps face
+    signal_group: int
+    instance: str  # the TrafficLightController instance whose state_<signal_group> it shows
+    height: float = 4.5
+
+
+@dataclass
 class VehicleSpec:
     name: str  # the FMU instance it is posed from
     length: float = 4.5
@@ -110,6 +150,7 @@ class VehicleSpec:
     kind: str = "car"
     rear_overhang: float = 0.95
     lidar: LidarSpec | None = None
+    gnss: GnssSpec | None = None
 
     @property
     def centre_offset(self) -> float:
@@ -123,15 +164,21 @@ class WorldLayout:
     buildings: list[Building] = field(default_factory=list)
     cameras: list[CameraSpec] = field(default_factory=list)
     vehicles: dict[str, VehicleSpec] = field(default_factory=dict)
+    signals: list[SignalSpec] = field(default_factory=list)
 
     @property
     def half_extent(self) -> float:
         return self.intersection.arm_length
 
     def resolved(self) -> dict[str, Any]:
+        """The [world] table with defaults filled in, loadable again (vehicles keyed by name)."""
         from dataclasses import asdict
 
-        return asdict(self)
+        out = asdict(self)
+        for v in out["vehicles"].values():
+            v.pop("name")
+            v["color"] = list(v["color"])
+        return out
 
 
 def _num(table: dict, key: str, where: str, default: Any, problem: Callable, *, positive=False,
@@ -206,6 +253,7 @@ def parse_world(table: Any, instances: dict, problem: Callable[[str, str], None]
     layout.buildings = _buildings(table.get("buildings", []), ix, p)
     layout.cameras = _cameras(table.get("cameras", []), layout.buildings, half, p)
     layout.vehicles = _vehicles(table.get("vehicles", {}), instances, half, p)
+    layout.signals = _signals(table.get("signals", []), instances, layout.buildings, half, p)
     return layout if n_before[0] == 0 else None
 
 
@@ -327,6 +375,8 @@ def _vehicles(table: Any, instances: dict, half: float, p: Callable) -> dict[str
             if lidar_on is not None:
                 p(f"{key}.lidar", f"only one vehicle carries a lidar (already on {lidar_on})")
             lidar_on = key
+        if "gnss" in item:
+            v.gnss = _gnss(item["gnss"], f"{key}.gnss", p)
         out[name] = v
     return out
 
@@ -346,3 +396,58 @@ def _lidar(item: Any, key: str, p: Callable) -> LidarSpec | None:
     if not -90 <= spec.fov_down <= spec.fov_up <= 90:
         p(key, f"need -90 <= fov_down <= fov_up <= 90, got fov_down {spec.fov_down}, fov_up {spec.fov_up}")
     return spec
+
+
+def _gnss(item: Any, key: str, p: Callable) -> GnssSpec | None:
+    if not isinstance(item, dict):
+        p(key, f"expected a table, got {type(item).__name__}")
+        return None
+    _unknown(item, _GNSS, key, p)
+    d = GnssSpec()
+    noise = {k: _num(item, k, key, getattr(d, k), p, nonneg=True)
+             for k in ("sigma_h", "sigma_v", "sigma_heading_deg", "sigma_speed", "bias_walk_h", "bias_walk_v")}
+    return GnssSpec(rate_hz=_num(item, "rate_hz", key, d.rate_hz, p, positive=True),
+                    seed=_num(item, "seed", key, d.seed, p, nonneg=True, integer=True), **noise)
+
+
+def _tlc_instances(instances: dict) -> list[str]:
+    out = []
+    for name, inst in instances.items():
+        cs = getattr(inst.model_description, "coSimulation", None)
+        if cs is not None and cs.modelIdentifier == TLC_MODEL:
+            out.append(name)
+    return out
+
+
+def _signals(items: Any, instances: dict, buildings: list[Building], half: float, p: Callable) -> list[SignalSpec]:
+    out = []
+    tlcs = _tlc_instances(instances)
+    for key, item in _named_list(items, "world.signals", p):
+        _unknown(item, _SIGNAL, key, p)
+        group = item.get("signal_group")
+        if isinstance(group, bool) or not isinstance(group, int) or not 1 <= group <= 8:
+            p(f"{key}.signal_group", f"required: an integer 1..8 (the controller's state_k output), got {group!r}")
+            group = 1
+        instance = item.get("instance")
+        if instance is None:
+            if len(tlcs) != 1:
+                p(f"{key}.instance", f"required when [fmus] has {len(tlcs)} {TLC_MODEL} instances "
+                                     f"({', '.join(tlcs) or 'none'})")
+            instance = tlcs[0] if tlcs else ""
+        elif not isinstance(instance, str) or instance not in instances:
+            p(f"{key}.instance",
+              f"no FMU instance {instance!r} in [fmus] (instances: {', '.join(instances) or 'none'})")
+        elif instance not in tlcs:
+            p(f"{key}.instance", f"instance {instance!r} is not a {TLC_MODEL} "
+                                 f"({TLC_MODEL} instances: {', '.join(tlcs) or 'none'})")
+        s = SignalSpec(str(item.get("name", "")), _num(item, "x", key, 0.0, p), _num(item, "y", key, 0.0, p),
+                       _num(item, "yaw", key, 0.0, p), int(group), str(instance),
+                       _num(item, "height", key, SignalSpec.height, p, positive=True))
+        if max(abs(s.x), abs(s.y)) > half:
+            p(key, f"outside the map at ({s.x}, {s.y}) (|x|, |y| <= arm_length {half})")
+        for i, b in enumerate(buildings):
+            (x0, y0, _), (x1, y1, _) = b.bounds
+            if x0 <= s.x <= x1 and y0 <= s.y <= y1:
+                p(key, f"inside building world.buildings[{i}] ({b.name})")
+        out.append(s)
+    return out

@@ -5,7 +5,8 @@ forward along the heading, y left, z up. The lidar sits above the roof at
 the body centre (`length/2 - rear_overhang` ahead of the rear axle), at
 height `vehicle height + mount_above_roof`. Channels are spread evenly from
 `fov_down` to `fov_up`; horizontal samples evenly over 360 degrees.
-Hits on the carrying vehicle itself are dropped.
+Hits on the carrying vehicle itself are dropped. `hits_by_vehicle` says
+which vehicles a scan saw (ray counts by name), from the scene's body ids.
 """
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ import pybullet as pb
 
 from master.world.layout import LidarSpec, VehicleSpec
 
-BATCH = 16384  # pybullet's rays-per-call limit (MAX_RAY_INTERSECTION_BATCH_SIZE)
+BATCH = 16383  # rays per rayTestBatch call: pybullet 3.2.x refuses more than 16384 and, given exactly
+               # 16384, answers only 16383 (the last ray is silently lost)
 
 
 @dataclass
@@ -26,6 +28,21 @@ class Scan:
     points: np.ndarray  # (N, 3) hit points in the vehicle frame (m)
     body_ids: np.ndarray  # (N,) pybullet body id hit by each point
     n_rays: int
+    pose: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the carrier's rear-axle pose (x, y, yaw) at the scan
+
+    def world_points(self) -> np.ndarray:
+        """The hit points in the world frame (N, 3)."""
+        x, y, yaw = self.pose
+        c, s = math.cos(yaw), math.sin(yaw)
+        R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+        return self.points @ R.T + np.array([x, y, 0.0])
+
+
+def hits_by_vehicle(scan: Scan, vehicle_ids: dict[str, int]) -> dict[str, int]:
+    """Rays of `scan` that hit each vehicle (name -> count); vehicles not hit are left out."""
+    ids, counts = np.unique(scan.body_ids, return_counts=True)
+    by_id = dict(zip(ids.tolist(), counts.tolist()))
+    return {name: by_id[body] for name, body in vehicle_ids.items() if body in by_id}
 
 
 class Lidar:
@@ -49,14 +66,18 @@ class Lidar:
         R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
         origin = np.array([x, y, 0.0]) + R @ self.mount
         ends = origin + (self.directions @ R.T) * self.spec.range
-        starts = np.broadcast_to(origin, ends.shape)
+        start = origin.tolist()
+        ends_list = ends.tolist()
         hits = []
-        for i in range(0, len(ends), BATCH):
-            hits.extend(pb.rayTestBatch(starts[i:i + BATCH].tolist(), ends[i:i + BATCH].tolist(),
-                                        physicsClientId=self.client))
+        for i in range(0, len(ends_list), BATCH):
+            chunk = ends_list[i:i + BATCH]
+            hits.extend(pb.rayTestBatch([start] * len(chunk), chunk, physicsClientId=self.client))
+        if len(hits) != len(ends_list):
+            raise RuntimeError(f"lidar on {self.vehicle.name!r}: pybullet answered {len(hits)} of "
+                               f"{len(ends_list)} rays")
         ids = np.fromiter((h[0] for h in hits), dtype=np.int64, count=len(hits))
         keep = (ids >= 0) & (ids != self.self_id)
         pos = np.array([hits[i][3] for i in np.flatnonzero(keep)], dtype=float).reshape(-1, 3)
         local = (pos - np.array([x, y, 0.0])) @ R  # world -> vehicle frame
         self.scan_times.append(time.perf_counter() - t0)
-        return Scan(t, local, ids[keep].astype(np.int32), len(ends))
+        return Scan(t, local, ids[keep].astype(np.int32), len(ends), (x, y, yaw))

@@ -6,10 +6,12 @@ from typing import Any
 
 from master.stats import percentiles
 from master.world.camera import Camera
+from master.world.gnss import Fix, Gnss
 from master.world.layout import WorldLayout
-from master.world.lidar import Lidar
+from master.world.lidar import Lidar, Scan, hits_by_vehicle
 from master.world.los import line_of_sight
 from master.world.scene import Scene
+from master.world.signals import state_name
 
 
 class World:
@@ -30,9 +32,17 @@ class World:
     def pose_vehicle(self, name: str, x: float, y: float, yaw: float, v: float = 0.0) -> None:
         self.scene.pose_vehicle(name, x, y, yaw, v)
 
-    def scan(self, name: str, t: float = 0.0):
+    def set_signal(self, name: str, state: int) -> bool:
+        """Show J2735 MovementPhaseState `state` on signal head `name` (True if the lamps changed)."""
+        return self.scene.set_signal(name, state)
+
+    def scan(self, name: str, t: float = 0.0) -> Scan:
         x, y, yaw, _ = self.scene.poses[name]
         return self.lidars[name].scan((x, y, yaw), t)
+
+    def hits_by_vehicle(self, scan: Scan) -> dict[str, int]:
+        """Rays of `scan` that hit each vehicle, by name (the carrier never hits itself)."""
+        return hits_by_vehicle(scan, self.scene.vehicle_ids)
 
     def line_of_sight(self, p, q) -> tuple[bool, int, float]:
         return line_of_sight(p, q, self.layout.buildings)
@@ -47,15 +57,40 @@ class World:
         self.close()
 
 
-class WorldParticipant:
-    """Poses vehicle bodies from their FMU outputs after each master step and renders
-    cameras at their rates. Stores no images yet: counts frames and render times."""
+class Schedule:
+    """Sample times start + n / rate_hz. A sample is taken at the first step end at
+    or after its time; slots a long step skipped are not taken late (no backlog)."""
 
-    def __init__(self, layout: WorldLayout, start: float):
-        self.layout, self.start = layout, start
+    def __init__(self, start: float, rate_hz: float):
+        self.start, self.rate, self.n = start, rate_hz, 0
+
+    def due(self, t: float) -> bool:
+        if t + 1e-9 < self.start + self.n / self.rate:
+            return False
+        self.n = max(self.n + 1, math.floor((t - self.start) * self.rate + 1e-9) + 1)
+        return True
+
+
+class WorldParticipant:
+    """The world in the master's loop. After each step it poses the vehicle bodies from
+    their FMUs' outputs, sets the signal heads from their controllers' state_k outputs,
+    and, at each sensor's rate, renders the cameras, scans the lidars (keeping which
+    vehicles each scan hit) and takes GNSS fixes. Stores no images: counts and times.
+
+    `sensors=False` leaves cameras, lidars and GNSS out (a snapshot needs only the poses).
+    """
+
+    def __init__(self, layout: WorldLayout, start: float, sensors: bool = True):
+        self.layout, self.start, self.sensors = layout, start, sensors
         self.world: World | None = None
         self._getters: list[tuple[str, Any]] = []
-        self._next_frame: dict[str, int] = {}
+        self._signal_getters: list[tuple[Any, list[str]]] = []  # (get state_k values, head per value)
+        self._schedules: dict[tuple[str, str], Schedule] = {}
+        self.gnss: dict[str, Gnss] = {}
+        self.fixes: dict[str, list[Fix]] = {}
+        self._gnss_err2: dict[str, list[float]] = {}
+        self.scans: dict[str, list[tuple[float, dict[str, int]]]] = {}  # lidar -> (t, rays per vehicle hit)
+        self.signal_log: list[tuple[float, str, int]] = []  # (t, head, new state)
 
     def open(self, fmus: dict[str, Any], t: float) -> dict[str, Any]:
         self.world = World(self.layout)
@@ -64,7 +99,25 @@ class WorldParticipant:
             outs = [v for v in ("x", "y", "yaw", "v") if v in fmu.variables]
             get = fmu.accessor(fmu.access_key(outs[0]), [fmu.variables[n].valueReference for n in outs], setter=False)
             self._getters.append((name, get))
-        self._next_frame = {n: 0 for n in self.world.cameras}
+        by_instance: dict[str, list] = {}
+        for sig in self.layout.signals:
+            by_instance.setdefault(sig.instance, []).append(sig)
+        for inst, heads in by_instance.items():
+            fmu = fmus[inst]
+            names = [f"state_{h.signal_group}" for h in heads]
+            get = fmu.accessor(fmu.access_key(names[0]), [fmu.variables[n].valueReference for n in names],
+                               setter=False)
+            self._signal_getters.append((get, [h.name for h in heads]))
+        if self.sensors:
+            w = self.world
+            self._schedules = {("camera", n): Schedule(self.start, c.spec.rate_hz) for n, c in w.cameras.items()}
+            self._schedules.update({("lidar", n): Schedule(self.start, l.spec.rate_hz) for n, l in w.lidars.items()})
+            self.scans = {n: [] for n in w.lidars}
+            for v in self.layout.vehicles.values():
+                if v.gnss is not None:
+                    self.gnss[v.name] = Gnss(v.gnss, v.name)
+                    self.fixes[v.name], self._gnss_err2[v.name] = [], []
+                    self._schedules[("gnss", v.name)] = Schedule(self.start, v.gnss.rate_hz)
         self.after_step(-1, t)
         return self.metadata()
 
@@ -73,25 +126,62 @@ class WorldParticipant:
         for name, get in self._getters:
             vals = get()
             w.pose_vehicle(name, vals[0], vals[1], vals[2], vals[3] if len(vals) > 3 else 0.0)
-        for name, cam in w.cameras.items():
-            n = self._next_frame[name]
-            due = self.start + n / cam.spec.rate_hz
-            if t_next + 1e-9 >= due:
-                cam.render(t_next)
-                # next frame slot strictly after t_next (no backlog of missed frames)
-                self._next_frame[name] = max(n + 1, math.floor((t_next - self.start) * cam.spec.rate_hz + 1e-9) + 1)
+        for get, heads in self._signal_getters:
+            for head, state in zip(heads, get()):
+                if w.set_signal(head, int(state)):
+                    self.signal_log.append((t_next, head, int(state)))
+        for (kind, name), schedule in self._schedules.items():
+            if not schedule.due(t_next):
+                continue
+            if kind == "camera":
+                w.cameras[name].render(t_next)
+            elif kind == "lidar":
+                self.scans[name].append((t_next, w.hits_by_vehicle(w.scan(name, t_next))))
+            else:
+                self._take_fix(name, t_next)
+
+    def _take_fix(self, name: str, t: float) -> None:
+        x, y, yaw, v = self.world.scene.poses[name]
+        fix = self.gnss[name].fix(t, x, y, self.layout.vehicles[name].height, yaw, v)
+        self.fixes[name].append(fix)
+        self._gnss_err2[name].append((fix.x - x) ** 2 + (fix.y - y) ** 2)
+
+    def lidar_metadata(self, name: str) -> dict[str, Any]:
+        lidar = self.world.lidars[name]
+        scans = self.scans.get(name, [])
+        seen: dict[str, dict[str, Any]] = {}
+        for other in self.layout.vehicles:
+            if other == name:
+                continue
+            hit = [(t, hits[other]) for t, hits in scans if other in hits]
+            seen[other] = {"first_hit_s": hit[0][0] if hit else None, "scans_hit": len(hit),
+                           "max_rays": max((n for _, n in hit), default=0)}
+        return {"scans": len(scans), "rate_hz": lidar.spec.rate_hz, "rays_per_scan": len(lidar.directions),
+                "scan_s": percentiles(lidar.scan_times), "vehicles": seen}
 
     def metadata(self) -> dict[str, Any]:
         w = self.world
         if w is None:
             return {}
+        poses = w.scene.poses
         return {
             "vehicles": list(self.layout.vehicles),
             "buildings": [b.name for b in self.layout.buildings],
-            "poses": {n: [x, y, yaw] for n, (x, y, yaw, _) in w.scene.poses.items()},  # last rear-axle poses
+            "poses": {n: [x, y, yaw] for n, (x, y, yaw, _) in poses.items()},  # last rear-axle poses
+            "speeds": {n: v for n, (_, _, _, v) in poses.items()},  # last speeds (m/s)
+            "sensors": self.sensors,
             "cameras": {n: {"frames": c.frame_id, "width": c.spec.width, "height": c.spec.height,
                             "rate_hz": c.spec.rate_hz, "render_s": percentiles(c.render_times)}
                         for n, c in w.cameras.items()},
+            "lidars": {n: self.lidar_metadata(n) for n in w.lidars},
+            "gnss": {n: {"fixes": len(f), "rate_hz": self.gnss[n].spec.rate_hz,
+                         "error_h_rms_m": (math.sqrt(sum(self._gnss_err2[n]) / len(f)) if f else None)}
+                     for n, f in self.fixes.items()},
+            "signals": {s.name: {"instance": s.instance, "signal_group": s.signal_group,
+                                 "state": w.scene.signal_states[s.name],
+                                 "lamps": state_name(w.scene.signal_states[s.name]),
+                                 "changes": sum(1 for _, h, _ in self.signal_log if h == s.name)}
+                        for s in self.layout.signals},
         }
 
     def close(self) -> dict[str, Any]:

@@ -1,0 +1,256 @@
+"""Benchmark: what the pybullet world costs: camera frames, lidar scans, posing vehicles per step.
+
+    python benchmarks/world.py [--repeats 3] [--json PATH] [--quick]
+
+1. Camera frames per second (pybullet's CPU TinyRenderer, `Camera.render`,
+   RGB + segmentation) at 320x240, 640x480 and 1280x720 on the case-study
+   scene (scenarios/ima_case_study.toml: ground, roads, sidewalks, the
+   corner building, both vehicles posed as at t = 4.8 s; the RSU camera's
+   pose and 100 deg field of view). Ratio: frames per second / the camera's
+   10 Hz rate (>= 1: rendering keeps up with simulated real time).
+2. Lidar scans per second (`Lidar.scan`: rays built, `rayTestBatch` in
+   batches of 16384, hits turned into vehicle-frame points) at 16 x 1024
+   and 32 x 2048 rays, from the cav at its t = 4.8 s pose, beside the floor:
+   bare `rayTestBatch` calls on the same rays with nothing done with the
+   results. Ratios: scan / floor time, and scans per second / 10 Hz.
+3. Cost per master step of posing N = 2, 20 and 200 vehicles (cars on a
+   grid in a 200 m map): `WorldParticipant.after_step` with the sensors off
+   (read each vehicle's outputs through a stand-in for the FMU getter, pose
+   its body), `World.pose_vehicle` for each vehicle, and the floor: a bare
+   loop of `resetBasePositionAndOrientation` with precomputed arguments.
+   Poses change every step. Ratio: time / floor.
+
+Every figure is the median over repeats (min too). Results go to JSON
+(default benchmarks/results/world.json). `--quick`: one repeat, fewer frames.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:  # run as a plain script from anywhere
+    sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+import pybullet as pb  # noqa: E402
+
+from benchmarks.common import RESULTS, machine_info, summary, write_report  # noqa: E402
+from master.world.layout import VehicleSpec, WorldLayout  # noqa: E402
+from master.world.lidar import BATCH  # noqa: E402
+from master.world.world import World, WorldParticipant  # noqa: E402
+
+SCENARIO = ROOT / "scenarios" / "ima_case_study.toml"
+RESOLUTIONS = ((320, 240), (640, 480), (1280, 720))
+LIDARS = ((16, 1024), (32, 2048))
+FLEETS = (2, 20, 200)
+SENSOR_HZ = 10.0
+POSES_48 = {"cav": (1.75, -50.0 + 8.333 * 4.8, math.pi / 2, 8.333), "ev": (-100.0 + 16.667 * 4.8, -1.75, 0.0, 16.667)}
+
+
+def case_study_layout() -> WorldLayout:
+    from master.scenario import load_scenario
+
+    return load_scenario(SCENARIO).world
+
+
+def pose_case_study(w: World) -> None:
+    for name, (x, y, yaw, v) in POSES_48.items():
+        w.pose_vehicle(name, x, y, yaw, v)
+
+
+def bench_camera(layout: WorldLayout, width: int, height: int, frames: int) -> float:
+    """Frames per second of one camera at width x height."""
+    cams = [dataclasses.replace(c, width=width, height=height) for c in layout.cameras[:1]]
+    with World(dataclasses.replace(layout, cameras=cams)) as w:
+        pose_case_study(w)
+        cam = next(iter(w.cameras.values()))
+        cam.render()  # warm-up
+        t0 = time.perf_counter()
+        for _ in range(frames):
+            cam.render()
+        return frames / (time.perf_counter() - t0)
+
+
+def bench_lidar(layout: WorldLayout, channels: int, samples: int, scans: int) -> tuple[float, float]:
+    """(scans per second, floor scans per second) of the cav's lidar at channels x samples."""
+    cav = layout.vehicles["cav"]
+    spec = dataclasses.replace(cav.lidar, channels=channels, horizontal_samples=samples)
+    vehicles = {**layout.vehicles, "cav": dataclasses.replace(cav, lidar=spec)}
+    with World(dataclasses.replace(layout, vehicles=vehicles, cameras=[])) as w:
+        pose_case_study(w)
+        lidar = w.lidars["cav"]
+        w.scan("cav")  # warm-up; also gives the rays for the floor
+        x, y, yaw, _ = w.scene.poses["cav"]
+        c, s = math.cos(yaw), math.sin(yaw)
+        R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+        origin = np.array([x, y, 0.0]) + R @ lidar.mount
+        ends = (origin + (lidar.directions @ R.T) * spec.range).tolist()
+        starts = np.broadcast_to(origin, (len(ends), 3)).tolist()
+        t0 = time.perf_counter()
+        for _ in range(scans):
+            w.scan("cav")
+        scan_rate = scans / (time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        for _ in range(scans):
+            for i in range(0, len(ends), BATCH):
+                pb.rayTestBatch(starts[i:i + BATCH], ends[i:i + BATCH], physicsClientId=w.scene.client)
+        floor_rate = scans / (time.perf_counter() - t0)
+    return scan_rate, floor_rate
+
+
+class _Var:
+    def __init__(self, vr: int):
+        self.valueReference = vr
+
+
+class _FakeFmu:
+    """Stands in for master.fmu_runtime.FmuInstance: getters return this step's outputs."""
+
+    def __init__(self):
+        self.values = [0.0, 0.0, 0.0, 0.0]
+        self.variables = {n: _Var(i) for i, n in enumerate(("x", "y", "yaw", "v"))}
+
+    def access_key(self, name: str) -> str:
+        return "Real"
+
+    def accessor(self, key, vrs, setter):
+        values = self.values
+        return lambda: values[:]
+
+
+def fleet_layout(n: int) -> WorldLayout:
+    return WorldLayout(vehicles={f"car{i}": VehicleSpec(f"car{i}") for i in range(n)})
+
+
+def grid_poses(n: int, k: int) -> list[tuple[float, float, float]]:
+    """Step k's poses of n cars on a 15 x 14 grid, each moved a little every step."""
+    return [(-90.0 + 12.0 * (i % 15) + 0.1 * k, -90.0 + 12.0 * (i // 15), 0.01 * k) for i in range(n)]
+
+
+def bench_posing(n: int, steps: int) -> dict[str, float]:
+    """Microseconds per master step to pose n vehicles: participant, World.pose_vehicle, bare floor."""
+    layout = fleet_layout(n)
+    out = {}
+    poses = [grid_poses(n, k) for k in range(steps)]
+    # participant path
+    part = WorldParticipant(layout, 0.0, sensors=False)
+    fmus = {name: _FakeFmu() for name in layout.vehicles}
+    part.open(fmus, 0.0)
+    try:
+        fmu_list = list(fmus.values())
+        t0 = time.perf_counter()
+        for k in range(steps):
+            for fmu, (x, y, yaw) in zip(fmu_list, poses[k]):
+                fmu.values[0], fmu.values[1], fmu.values[2] = x, y, yaw
+            part.after_step(k, 0.01 * (k + 1))
+        out["WorldParticipant.after_step"] = (time.perf_counter() - t0) / steps * 1e6
+        w = part.world
+        names = list(layout.vehicles)
+        t0 = time.perf_counter()
+        for k in range(steps):
+            for name, (x, y, yaw) in zip(names, poses[k]):
+                w.pose_vehicle(name, x, y, yaw)
+        out["World.pose_vehicle"] = (time.perf_counter() - t0) / steps * 1e6
+        ids = [w.scene.vehicle_ids[name] for name in names]
+        client = w.scene.client
+        args = [[((x, y, 0.0), (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))) for x, y, yaw in p] for p in poses]
+        reset = pb.resetBasePositionAndOrientation
+        t0 = time.perf_counter()
+        for k in range(steps):
+            for body, (pos, orn) in zip(ids, args[k]):
+                reset(body, pos, orn, physicsClientId=client)
+        out["floor: bare reset loop"] = (time.perf_counter() - t0) / steps * 1e6
+    finally:
+        part.close()
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=3, help="repeats of every case (default 3)")
+    ap.add_argument("--json", type=Path, default=RESULTS / "world.json")
+    ap.add_argument("--quick", action="store_true", help="smoke test: 1 repeat, few frames and scans")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.repeats = 1
+    frames = {320: 3, 640: 2, 1280: 1} if args.quick else {320: 20, 640: 8, 1280: 4}
+    scans = {1024: 3, 2048: 1} if args.quick else {1024: 20, 2048: 6}
+    steps = {2: 50, 20: 20, 200: 5} if args.quick else {2: 2000, 20: 500, 200: 100}
+
+    info = machine_info(pybullet=str(pb.getAPIVersion()), numpy=np.__version__)
+    print(f"world benchmark: {args.repeats} repeat(s); {info['cpu_count']} CPUs, Python {info['python']}, "
+          f"load {info.get('loadavg_start', ['?'])[0]}")
+    layout = case_study_layout()
+    cam_runs = {r: [] for r in RESOLUTIONS}
+    lidar_runs = {c: ([], []) for c in LIDARS}
+    pose_runs: dict[int, dict[str, list[float]]] = {n: {} for n in FLEETS}
+    t_start = time.perf_counter()
+    for r in range(args.repeats):
+        for w_, h_ in RESOLUTIONS:
+            cam_runs[(w_, h_)].append(bench_camera(layout, w_, h_, frames[w_]))
+        for ch, hs in LIDARS:
+            rate, floor = bench_lidar(layout, ch, hs, scans[hs])
+            lidar_runs[(ch, hs)][0].append(rate)
+            lidar_runs[(ch, hs)][1].append(floor)
+        for n in FLEETS:
+            for case, us in bench_posing(n, steps[n]).items():
+                pose_runs[n].setdefault(case, []).append(us)
+        print(f"  repeat {r + 1}/{args.repeats} done ({time.perf_counter() - t_start:.0f} s)", flush=True)
+
+    med = statistics.median
+    print()
+    print(f"1. camera frames per second (TinyRenderer, RGB + segmentation, case-study scene); "
+          f"ratio = fps / {SENSOR_HZ:g} Hz")
+    head = f"{'resolution':<12} {'fps':>8} {'min':>8} {'ms/frame':>9} {'ratio':>7}"
+    print(head + "\n" + "-" * len(head))
+    cameras = []
+    for (w_, h_), vals in cam_runs.items():
+        m = med(vals)
+        cameras.append({"width": w_, "height": h_, "frames_per_repeat": frames[w_], "fps": summary(vals),
+                        "ms_per_frame_median": 1e3 / m, "ratio_to_10hz": m / SENSOR_HZ})
+        print(f"{w_}x{h_:<8} {m:8.2f} {min(vals):8.2f} {1e3 / m:9.1f} {m / SENSOR_HZ:7.2f}")
+
+    print()
+    print("2. lidar scans per second (cav, case-study scene); floor = bare rayTestBatch on the same rays")
+    head = (f"{'rays':<12} {'scans/s':>8} {'min':>8} {'ms/scan':>8} {'floor/s':>8} {'scan/floor':>10} "
+            f"{'/10 Hz':>7}")
+    print(head + "\n" + "-" * len(head))
+    lidars = []
+    for (ch, hs), (vals, floors) in lidar_runs.items():
+        m, f = med(vals), med(floors)
+        lidars.append({"channels": ch, "horizontal_samples": hs, "rays": ch * hs, "scans_per_repeat": scans[hs],
+                       "scans_per_s": summary(vals), "floor_scans_per_s": summary(floors),
+                       "ms_per_scan_median": 1e3 / m, "time_ratio_to_floor": f / m, "ratio_to_10hz": m / SENSOR_HZ})
+        print(f"{ch}x{hs:<9} {m:8.2f} {min(vals):8.2f} {1e3 / m:8.1f} {f:8.2f} {f / m:10.2f} {m / SENSOR_HZ:7.2f}")
+
+    print()
+    print("3. posing N vehicles per master step (us per step); ratio = time / floor (bare reset loop)")
+    head = f"{'N':>4} {'case':<30} {'us/step':>9} {'min':>9} {'us/vehicle':>10} {'ratio':>7}"
+    print(head + "\n" + "-" * len(head))
+    posing = []
+    for n in FLEETS:
+        floor = med(pose_runs[n]["floor: bare reset loop"])
+        for case, vals in pose_runs[n].items():
+            m = med(vals)
+            posing.append({"vehicles": n, "case": case, "steps_per_repeat": steps[n], "us_per_step": summary(vals),
+                           "us_per_vehicle_median": m / n, "ratio_to_floor": m / floor})
+            print(f"{n:>4} {case:<30} {m:9.1f} {min(vals):9.1f} {m / n:10.2f} {m / floor:7.2f}")
+
+    report = {"benchmark": "world", "machine": info,
+              "settings": {"repeats": args.repeats, "quick": args.quick, "scenario": str(SCENARIO),
+                           "poses": "case study at t = 4.8 s", "sensor_rate_hz": SENSOR_HZ},
+              "cameras": cameras, "lidars": lidars, "posing": posing,
+              "wall_s": time.perf_counter() - t_start}
+    write_report(args.json, report)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
