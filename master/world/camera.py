@@ -64,8 +64,8 @@ class Frame:
 class Camera:
     """A pinhole camera; with `client=None` it only projects (no renderer is touched)."""
 
-    def __init__(self, spec: CameraSpec, client: int | None):
-        self.spec, self.client = spec, client
+    def __init__(self, spec: CameraSpec, client: int | None, renderer: int = pb.ER_TINY_RENDERER):
+        self.spec, self.client, self.renderer = spec, client, renderer
         self.frame_id = 0
         self.render_times: list[float] = []
         yaw, pitch, roll = (math.radians(a) for a in (spec.yaw, spec.pitch, spec.roll))
@@ -120,7 +120,7 @@ class Camera:
         light = (lighting or Lighting()).arguments()
         t0 = time.perf_counter()
         try:
-            _, _, rgba, _, seg = pb.getCameraImage(W, H, self._view, self._proj, renderer=pb.ER_TINY_RENDERER,
+            _, _, rgba, _, seg = pb.getCameraImage(W, H, self._view, self._proj, renderer=self.renderer,
                                                    physicsClientId=self.client, **light)
         except pb.error as exc:
             raise RuntimeError(f"camera {self.name!r}: render failed: {exc}") from exc

@@ -252,7 +252,7 @@ def render_sample(sample: Sample, layout: WorldLayout, occlusion: bool = True):
     with Scene(scene_layout) as scene:
         for v in sample.vehicles:
             scene.pose_vehicle(v.spec.name, v.x, v.y, v.yaw, v.speed)
-        cam = Camera(sample.camera, scene.client)
+        cam = Camera(sample.camera, scene.client, scene.renderer)
         frame = cam.render(0.0, sample.lighting)
         truths = frame_truth(scene, cam, frame, occlusion=occlusion)
     by_name = {v.spec.name: v for v in sample.vehicles}

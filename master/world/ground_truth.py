@@ -64,7 +64,7 @@ def _alone_pixels(scene: Scene, camera: Camera, body: int) -> int:
         for b in others:
             pb.resetBasePositionAndOrientation(b, (0, 0, -1e4), (0, 0, 0, 1), physicsClientId=c)
         W, H = camera.spec.width, camera.spec.height
-        seg = pb.getCameraImage(W, H, camera._view, camera._proj, renderer=pb.ER_TINY_RENDERER,
+        seg = pb.getCameraImage(W, H, camera._view, camera._proj, renderer=camera.renderer,
                                 physicsClientId=c)[4]
         seg = np.asarray(seg, dtype=np.int64).reshape(H, W)
         return int(np.count_nonzero(seg == body))

@@ -52,6 +52,9 @@ class Scene:
         self.labels: dict[int, tuple[str, str]] = {}
         self.poses: dict[str, tuple[float, float, float, float]] = {}  # name -> x, y, yaw, v (rear axle)
         try:
+            from master.world import renderer
+
+            self.renderer_name, self.renderer = renderer.attach(self.client)
             self._build_ground()
             for b in layout.buildings:
                 self.building_ids[b.name] = self._box((b.x, b.y, b.height / 2),

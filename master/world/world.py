@@ -22,7 +22,7 @@ class World:
         self.scene = Scene(layout)
         c = self.scene.client
         try:
-            self.cameras = {s.name: Camera(s, c) for s in layout.cameras}
+            self.cameras = {s.name: Camera(s, c, self.scene.renderer) for s in layout.cameras}
             self.lidars = {v.name: Lidar(v, v.lidar, c, self.scene.vehicle_ids[v.name])
                            for v in layout.vehicles.values() if v.lidar is not None}
         except Exception:
@@ -170,6 +170,7 @@ class WorldParticipant:
             "poses": {n: [x, y, yaw] for n, (x, y, yaw, _) in poses.items()},  # last rear-axle poses
             "speeds": {n: v for n, (_, _, _, v) in poses.items()},  # last speeds (m/s)
             "sensors": self.sensors,
+            "renderer": w.scene.renderer_name,
             "cameras": {n: {"frames": c.frame_id, "width": c.spec.width, "height": c.spec.height,
                             "rate_hz": c.spec.rate_hz, "render_s": percentiles(c.render_times)}
                         for n, c in w.cameras.items()},
