@@ -110,6 +110,21 @@ def test_coco_structure_and_files(small_dataset):
                 assert fx - 1 <= u <= fx + fw + 1 and fy - 1 <= v <= fy + fh + 1
 
 
+def test_backgrounds_are_the_same_view_without_vehicles(layout, tmp_path):
+    coco = make_dataset(layout, tmp_path / "bg", frames=2, seed=3, backgrounds=True, occlusion=False)
+    for im in coco["images"]:
+        frame = np.asarray(Image.open(tmp_path / "bg" / im["file_name"]))
+        empty = np.asarray(Image.open(tmp_path / "bg" / im["background"]))
+        changed = np.any(frame != empty, axis=2)
+        inside = np.zeros_like(changed)
+        for a in coco["annotations"]:
+            if a["image_id"] == im["id"]:
+                x, y, w, h = a["bbox"]
+                inside[y:y + h, x:x + w] = True
+        assert changed.any() == bool(inside.any())
+        assert not (changed & ~inside).any(), "the background differs outside the vehicles' boxes"
+
+
 def test_frame_without_vehicles_has_no_labels(layout):
     sample = replace(draw_sample(0, 1, "train", layout, layout.cameras[0]), vehicles=[])
     frame, labels = render_sample(sample, layout)

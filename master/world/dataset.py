@@ -15,6 +15,7 @@ Output folder (COCO-style, documented in the README):
 
     DIR/images/000000.png    RGB frames
     DIR/annotations.json     {"info", "categories", "images", "annotations"}
+    DIR/backgrounds/000000.png  with --backgrounds: the same view without vehicles
     DIR/frames.jsonl         one line per finished frame, written as it goes
                              (an interrupted run keeps what it rendered)
 
@@ -291,6 +292,7 @@ class DatasetJob:
     variant: str
     occlusion: bool
     scenario: str = ""
+    backgrounds: bool = False
 
 
 def _frame_record(job: DatasetJob, index: int) -> dict[str, Any]:
@@ -300,9 +302,14 @@ def _frame_record(job: DatasetJob, index: int) -> dict[str, Any]:
     frame, labels = render_sample(sample, job.layout, occlusion=job.occlusion)
     name = f"images/{index:06d}.png"
     Image.fromarray(frame.rgb).save(Path(job.out) / name, compress_level=1)
+    extra = {}
+    if job.backgrounds:  # the same camera, sun and scene without vehicles (background-subtraction baselines)
+        empty, _ = render_sample(replace(sample, vehicles=[]), job.layout, occlusion=False)
+        extra["background"] = f"backgrounds/{index:06d}.png"
+        Image.fromarray(empty.rgb).save(Path(job.out) / extra["background"], compress_level=1)
     c = sample.camera
     return {
-        "image": {"id": index, "file_name": name, "width": c.width, "height": c.height, "t": 0.0,
+        "image": {"id": index, "file_name": name, "width": c.width, "height": c.height, "t": 0.0, **extra,
                   "camera": {"name": c.name, "P": frame.P.round(6).tolist(), "K": frame.K.round(6).tolist(),
                              "R_wc": frame.R_wc.round(8).tolist(), "position": frame.position.round(4).tolist(),
                              "yaw": c.yaw, "pitch": c.pitch, "roll": c.roll, "fov_deg": c.fov_deg},
@@ -327,7 +334,7 @@ def _work(index: int) -> dict[str, Any]:
 
 def make_dataset(layout: WorldLayout, out: Path, frames: int, seed: int, variant: str = "train",
                  camera: str | None = None, jobs: int = 1, occlusion: bool = True, force: bool = False,
-                 scenario: str = "", progress: bool = False) -> dict[str, Any]:
+                 scenario: str = "", progress: bool = False, backgrounds: bool = False) -> dict[str, Any]:
     """Render `frames` labelled frames into `out`; returns the COCO dictionary it wrote."""
     if variant not in VARIANTS:
         raise DatasetError(f"variant: expected one of {', '.join(VARIANTS)}, got {variant!r}")
@@ -348,7 +355,9 @@ def make_dataset(layout: WorldLayout, out: Path, frames: int, seed: int, variant
     if out.exists() and any(out.iterdir()) and not force:
         raise DatasetError(f"out: {out} exists and is not empty (use --force to overwrite)")
     (out / "images").mkdir(parents=True, exist_ok=True)
-    job = DatasetJob(layout, base, str(out), seed, variant, occlusion, scenario)
+    if backgrounds:
+        (out / "backgrounds").mkdir(exist_ok=True)
+    job = DatasetJob(layout, base, str(out), seed, variant, occlusion, scenario, backgrounds)
     records: list[dict[str, Any]] = []
     with open(out / "frames.jsonl", "w") as log:
         for record in _records(job, frames, jobs, progress):
@@ -390,7 +399,7 @@ def _coco(records: list[dict[str, Any]], job: DatasetJob, frames: int) -> dict[s
             annotations.append({"id": len(annotations) + 1, "image_id": record["image"]["id"], **label})
     return {
         "info": {"generator": GENERATOR, "seed": job.seed, "variant": job.variant, "frames": frames,
-                 "scenario": job.scenario, "occlusion": job.occlusion,
+                 "scenario": job.scenario, "occlusion": job.occlusion, "backgrounds": job.backgrounds,
                  "min_visible_pixels": MIN_VISIBLE_PIXELS, "max_occlusion": MAX_OCCLUSION},
         "categories": CATEGORIES, "images": images, "annotations": annotations,
     }

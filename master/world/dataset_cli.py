@@ -21,7 +21,7 @@ def _cmd_dataset(args) -> int:
     try:
         coco = make_dataset(sc.world, Path(args.out), args.frames, args.seed, args.variant, args.camera,
                             args.jobs, occlusion=not args.no_occlusion, force=args.force,
-                            scenario=str(args.scenario), progress=not args.quiet)
+                            scenario=str(args.scenario), progress=not args.quiet, backgrounds=args.backgrounds)
     except DatasetError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -44,6 +44,8 @@ def add_parser(sub) -> None:
     d.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     d.add_argument("--no-occlusion", action="store_true",
                    help="skip the exact occlusion fractions (one extra render per vehicle in view)")
+    d.add_argument("--backgrounds", action="store_true",
+                   help="also write each frame's view without vehicles (for background-subtraction baselines)")
     d.add_argument("--force", action="store_true", help="write into a non-empty folder")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=_cmd_dataset)
