@@ -1,0 +1,109 @@
+"""`v2i train-detector`, `v2i eval-detector` and `v2i export-detector` (added to the master's CLI).
+
+Exit codes as the rest of `v2i`: 0 success, 1 failure while running, 2 bad input.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    t = sub.add_parser("train-detector", help="train the RSU's CenterNet vehicle detector on a dataset folder")
+    t.add_argument("--data", required=True, help="dataset folder written by `v2i dataset`")
+    t.add_argument("--out", required=True, help="weights file to write (.pt)")
+    t.add_argument("--epochs", type=int, default=30)
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--threads", type=int, default=2, help="CPU threads for torch (default 2)")
+    t.add_argument("--batch-size", type=int, default=8)
+    t.add_argument("--lr", type=float, default=2e-3)
+    t.add_argument("--width", type=int, default=16, help="channels of the first stage (speed/accuracy)")
+    t.add_argument("--onnx", help="also export the trained network to this .onnx file")
+    t.set_defaults(func=_cmd_train)
+
+    e = sub.add_parser("eval-detector", help="AP, recall by distance/occlusion and FPS of a detector on a dataset")
+    e.add_argument("--data", required=True, help="dataset folder written by `v2i dataset`")
+    e.add_argument("--detector", default="torch", help="backend: torch, onnx or classical (default torch)")
+    e.add_argument("--weights", help="weights (.pt for torch; .onnx or .pt for onnx)")
+    e.add_argument("--background", help="classical: empty-scene image (default DIR/background.png if present, "
+                                         "else MOG2 over the frames)")
+    e.add_argument("--threads", type=int, default=None)
+    e.add_argument("--score-threshold", type=float, default=0.05,
+                   help="lowest score kept (low for AP; recall bins use it too)")
+    e.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    e.set_defaults(func=_cmd_eval)
+
+    x = sub.add_parser("export-detector", help="export trained detector weights to ONNX")
+    x.add_argument("--weights", required=True)
+    x.add_argument("--out", required=True)
+    x.set_defaults(func=_cmd_export)
+
+
+def _cmd_train(args) -> int:
+    from rsu_app.perception.dataset import DatasetError
+    from rsu_app.perception.train import train
+
+    if not Path(args.data).is_dir():
+        print(f"error: --data {args.data}: not a folder", file=sys.stderr)
+        return 2
+    command = "v2i " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("v2i") else None
+    try:
+        ckpt = train(args.data, args.out, epochs=args.epochs, seed=args.seed, threads=args.threads,
+                     batch_size=args.batch_size, lr=args.lr, width=args.width,
+                     command=command or f"v2i train-detector --data {args.data} --out {args.out} "
+                                        f"--epochs {args.epochs} --seed {args.seed} --threads {args.threads}")
+    except (DatasetError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.onnx:
+        from rsu_app.perception.onnx_backend import export_onnx
+
+        export_onnx(ckpt, args.onnx)
+    tr = ckpt["training"]
+    print(f"trained {tr['epochs']} epochs on {tr['images']} images in {tr['seconds']} s; "
+          f"final loss {tr['history'][-1]['loss']:.4f}; wrote {args.out}")
+    return 0
+
+
+def _cmd_eval(args) -> int:
+    from rsu_app.perception.dataset import DatasetError, load_dataset
+    from rsu_app.perception.detector import DetectorError, make_detector
+    from rsu_app.perception.evaluate import evaluate
+
+    try:
+        ds = load_dataset(args.data)
+        opts: dict = {}
+        if args.detector == "classical":
+            bg = args.background or (Path(args.data) / "background.png")
+            if Path(bg).is_file():
+                opts["background"] = bg
+            elif args.background:
+                raise DetectorError(f"--background {args.background}: not found")
+        else:
+            if not args.weights:
+                raise DetectorError(f"detector {args.detector!r} needs --weights")
+            opts.update(weights=args.weights, score_threshold=args.score_threshold)
+            if args.threads is not None:
+                opts["threads"] = args.threads
+        det = make_detector(args.detector, **opts)
+    except (DatasetError, DetectorError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    report = evaluate(det, ds)
+    print(json.dumps(report.to_dict(), indent=2) if args.json else report.table())
+    return 0
+
+
+def _cmd_export(args) -> int:
+    from rsu_app.perception.detector import DetectorError
+    from rsu_app.perception.onnx_backend import export_onnx
+
+    try:
+        data = export_onnx(args.weights, args.out)
+    except DetectorError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {args.out} ({len(data)} bytes)")
+    return 0

@@ -1,0 +1,80 @@
+"""One `Detector` interface, backends chosen by name.
+
+    det = make_detector("torch", weights="weights.pt", threads=2)
+    for d in det.detect(frame.rgb): ...
+
+Like python-can's `Bus(interface=...)`: callers name a backend, the table
+below maps the name to its class, imported only when asked for (so the
+classical baseline works without torch installed).
+"""
+from __future__ import annotations
+
+import importlib
+import math
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+LABELS = ("car", "emergency")
+
+BACKENDS: dict[str, str] = {
+    "classical": "rsu_app.perception.classical:ClassicalDetector",
+    "torch": "rsu_app.perception.torch_backend:TorchDetector",
+    "onnx": "rsu_app.perception.onnx_backend:OnnxDetector",
+}
+
+
+class DetectorError(ValueError):
+    """Bad input to a detector or a bad detector configuration."""
+
+
+@dataclass(frozen=True)
+class Detection:
+    box: tuple[float, float, float, float]  # u0, v0, u1, v1 in continuous frame pixels
+    label: str  # "car" | "emergency"
+    score: float  # 0..1
+
+    def __post_init__(self):
+        if len(self.box) != 4 or not all(math.isfinite(b) for b in self.box):
+            raise DetectorError(f"detection box must be 4 finite numbers, got {self.box!r}")
+        if self.box[2] < self.box[0] or self.box[3] < self.box[1]:
+            raise DetectorError(f"detection box must have u1 >= u0 and v1 >= v0, got {self.box!r}")
+        if self.label not in LABELS:
+            raise DetectorError(f"detection label must be one of {LABELS}, got {self.label!r}")
+
+
+@runtime_checkable
+class Detector(Protocol):
+    name: str
+
+    def detect(self, rgb: np.ndarray) -> list[Detection]:
+        """Vehicles in one RGB frame, best score first; [] when there are none."""
+
+
+def check_frame(rgb) -> np.ndarray:
+    """The frame as a (H, W, 3) uint8 array, or a DetectorError saying what is wrong with it."""
+    if not isinstance(rgb, np.ndarray):
+        raise DetectorError(f"frame must be a numpy array, got {type(rgb).__name__}")
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise DetectorError(f"frame must have shape (H, W, 3), got {rgb.shape}")
+    if rgb.shape[0] == 0 or rgb.shape[1] == 0:
+        raise DetectorError(f"frame is empty: shape {rgb.shape}")
+    if rgb.dtype != np.uint8:
+        raise DetectorError(f"frame must be uint8 RGB, got dtype {rgb.dtype}")
+    return rgb
+
+
+def make_detector(name: str, **options) -> Detector:
+    """The detector backend called `name`, constructed with `options`."""
+    try:
+        target = BACKENDS[name]
+    except KeyError:
+        raise DetectorError(f"unknown detector {name!r}; known: {', '.join(sorted(BACKENDS))}") from None
+    module, cls = target.split(":")
+    try:
+        mod = importlib.import_module(module)
+    except ImportError as exc:
+        raise DetectorError(f"detector {name!r} needs a missing package: {exc.name or exc} "
+                            f"(install the 'perception' extra)") from exc
+    return getattr(mod, cls)(**options)

@@ -1,0 +1,212 @@
+"""Detector evaluation on a dataset folder: COCO-style AP, recall by distance and occlusion, FPS.
+
+AP follows the COCO recipe: per class, detections of all images sorted by
+score, greedy matching to the best-IoU unmatched truth at each IoU
+threshold (truths not flagged "ignore" first), precision made monotone and
+sampled at 101 recall points. A detection matched to an ignored truth is
+dropped (neither true nor false positive); ignored truths are never misses.
+"Overall" is the mean over classes that have truths (COCO's mAP).
+Recall by distance/occlusion counts non-ignored truths found at IoU 0.5
+(class-aware) among the detector's outputs at its own score threshold.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rsu_app.perception.dataset import Dataset, Truth
+from rsu_app.perception.detector import Detection, Detector
+
+IOU_THRESHOLDS = np.round(np.arange(0.5, 0.96, 0.05), 2)
+RECALL_POINTS = np.linspace(0, 1, 101)
+DISTANCE_BINS = (0.0, 20.0, 40.0, 60.0, math.inf)
+OCCLUSION_BINS = (0.0, 0.25, 0.5, 0.75, 1.0 + 1e-9)
+
+
+def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU of every box in a (N, 4) with every box in b (M, 4), boxes as u0, v0, u1, v1."""
+    a, b = np.asarray(a, float).reshape(-1, 4), np.asarray(b, float).reshape(-1, 4)
+    iw = np.clip(np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0]), 0, None)
+    ih = np.clip(np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1]), 0, None)
+    inter = iw * ih
+    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    union = area_a[:, None] + area_b[None, :] - inter
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(union > 0, inter / union, 0.0)
+
+
+def match(dets: list[Detection], truths: list[Truth], thr: float) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy COCO matching in one image, one class. Returns per detection 1 (TP), 0 (FP), -1 (dropped:
+    matched an ignored truth), and per truth the index of its detection or -1."""
+    order = np.argsort([-d.score for d in dets], kind="stable")
+    ign = np.array([t.ignore for t in truths], bool)
+    # truths not ignored first, so a detection prefers them (COCO sorts gt by ignore flag)
+    gt_order = np.argsort(ign, kind="stable")
+    ious = iou_matrix([dets[i].box for i in order], [truths[j].box for j in gt_order]) if truths else None
+    det_state = np.zeros(len(dets), int)
+    gt_match = -np.ones(len(truths), int)
+    for r, di in enumerate(order):
+        best, best_iou = -1, min(thr, 1 - 1e-10)
+        for c, gj in enumerate(gt_order):
+            if gt_match[gj] >= 0 and not ign[gj]:
+                continue
+            if best >= 0 and not ign[gt_order[best]] and ign[gj]:
+                break  # already matched a real truth; ignored ones come last
+            if ious[r, c] < best_iou:
+                continue
+            best, best_iou = c, ious[r, c]
+        if best < 0:
+            continue
+        gj = gt_order[best]
+        gt_match[gj] = di
+        det_state[di] = -1 if ign[gj] else 1
+    return det_state, gt_match
+
+
+def average_precision(tp: np.ndarray, scores: np.ndarray, n_truth: int) -> float:
+    """101-point interpolated AP from per-detection TP flags (FP = 0) and scores; NaN without truths."""
+    if n_truth == 0:
+        return float("nan")
+    if len(tp) == 0:
+        return 0.0
+    order = np.argsort(-scores, kind="mergesort")
+    tp = tp[order].astype(float)
+    ctp, cfp = np.cumsum(tp), np.cumsum(1 - tp)
+    recall = ctp / n_truth
+    precision = ctp / np.maximum(ctp + cfp, np.finfo(float).eps)
+    precision = np.maximum.accumulate(precision[::-1])[::-1]
+    idx = np.searchsorted(recall, RECALL_POINTS, side="left")
+    return float(np.mean([precision[i] if i < len(precision) else 0.0 for i in idx]))
+
+
+@dataclass
+class Report:
+    detector: str
+    images: int
+    truths: dict[str, int]
+    ap50: dict[str, float]
+    ap: dict[str, float]  # AP@0.5:0.95
+    recall_by_distance: list[dict] = field(default_factory=list)
+    recall_by_occlusion: list[dict] = field(default_factory=list)
+    fps: float = float("nan")
+    ms_per_frame: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        from dataclasses import asdict
+
+        def clean(x):
+            if isinstance(x, float) and not math.isfinite(x):
+                return None
+            if isinstance(x, dict):
+                return {k: clean(v) for k, v in x.items()}
+            if isinstance(x, list):
+                return [clean(v) for v in x]
+            return x
+
+        return clean(asdict(self))
+
+    def table(self) -> str:
+        f = lambda x: "  n/a" if not math.isfinite(x) else f"{x:5.3f}"  # noqa: E731
+        lines = [f"detector {self.detector}: {self.images} images, {self.fps:.1f} FPS "
+                 f"(p50 {self.ms_per_frame.get('p50', float('nan')):.1f} ms)",
+                 f"{'class':<10} {'truths':>6} {'AP50':>6} {'AP':>6}"]
+        for c in [*self.truths, "overall"]:
+            n = self.truths.get(c, sum(self.truths.values()))
+            lines.append(f"{c:<10} {n:>6} {f(self.ap50[c]):>6} {f(self.ap[c]):>6}")
+        for title, rows in (("distance (m)", self.recall_by_distance), ("occlusion", self.recall_by_occlusion)):
+            lines.append(f"recall by {title}:")
+            for r in rows:
+                lines.append(f"  {r['bin']:<12} {r['found']:>5}/{r['truths']:<5} {f(r['recall'])}")
+        return "\n".join(lines)
+
+
+def _bin_label(lo: float, hi: float) -> str:
+    return f"{lo:g}+" if math.isinf(hi) else f"{lo:g}-{round(hi, 6):g}"
+
+
+def _recall_bins(found: list[tuple[float | None, bool]], edges) -> list[dict]:
+    rows = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sel = [ok for v, ok in found if v is not None and lo <= v < hi]
+        rows.append({"bin": _bin_label(lo, hi), "truths": len(sel), "found": int(sum(sel)),
+                     "recall": sum(sel) / len(sel) if sel else float("nan")})
+    unknown = [ok for v, ok in found if v is None]
+    if unknown:
+        rows.append({"bin": "unknown", "truths": len(unknown), "found": int(sum(unknown)),
+                     "recall": sum(unknown) / len(unknown)})
+    return rows
+
+
+def evaluate_detections(ds: Dataset, detections: list[list[Detection]], detector: str = "?",
+                        classes=("car", "emergency"), operating_threshold: float = 0.0) -> Report:
+    """Score per-image detections (in dataset order) against the dataset's truths."""
+    if not ds.samples:
+        raise ValueError(f"{ds.root}: the dataset has no images")
+    if len(detections) != len(ds.samples):
+        raise ValueError(f"{len(detections)} detection lists for {len(ds.samples)} images")
+    ap50, ap = {}, {}
+    n_truth = {}
+    found_dist: list[tuple[float | None, bool]] = []
+    found_occ: list[tuple[float | None, bool]] = []
+    for c in classes:
+        tps: dict[float, list[np.ndarray]] = {float(t): [] for t in IOU_THRESHOLDS}
+        scs: dict[float, list[np.ndarray]] = {float(t): [] for t in IOU_THRESHOLDS}
+        n = 0
+        for s, dets in zip(ds.samples, detections):
+            d = [x for x in dets if x.label == c]
+            g = [t for t in s.truths if t.label == c]
+            n += sum(not t.ignore for t in g)
+            sc = np.array([x.score for x in d], float)
+            for thr in map(float, IOU_THRESHOLDS):
+                state, gt_match = match(d, g, thr)
+                keep = state >= 0
+                tps[thr].append(state[keep])
+                scs[thr].append(sc[keep])
+                if thr == float(IOU_THRESHOLDS[0]):
+                    for t, m in zip(g, gt_match):
+                        if not t.ignore:
+                            ok = bool(m >= 0 and d[m].score >= operating_threshold)
+                            found_dist.append((t.distance, ok))
+                            found_occ.append((t.occlusion, ok))
+        n_truth[c] = n
+        aps = [average_precision(np.concatenate(tps[thr]), np.concatenate(scs[thr]), n)
+               for thr in map(float, IOU_THRESHOLDS)]
+        ap50[c], ap[c] = aps[0], float(np.mean(aps)) if n else float("nan")
+    have = [c for c in classes if n_truth[c] > 0]
+    ap50["overall"] = float(np.mean([ap50[c] for c in have])) if have else float("nan")
+    ap["overall"] = float(np.mean([ap[c] for c in have])) if have else float("nan")
+    return Report(detector, len(ds.samples), n_truth, ap50, ap,
+                  _recall_bins(found_dist, DISTANCE_BINS), _recall_bins(found_occ, OCCLUSION_BINS))
+
+
+def evaluate(detector: Detector, ds: Dataset, warmup: int = 2) -> Report:
+    """Run `detector` over every image (timing each call, image loading excluded) and score it.
+
+    A detector with `set_background` (the classical one) gets each image's empty-scene image
+    when the dataset has one (image field "background"), since each frame may have its own
+    camera pose and light."""
+    if not ds.samples:
+        raise ValueError(f"{ds.root}: the dataset has no images")
+    dets, times = [], []
+    for i, s in enumerate(ds.samples):
+        rgb = s.load()
+        bg = s.background()
+        if bg is not None and hasattr(detector, "set_background"):
+            detector.set_background(bg)
+        if i == 0:
+            for _ in range(warmup):
+                detector.detect(rgb)
+        t0 = time.perf_counter()
+        dets.append(detector.detect(rgb))
+        times.append(time.perf_counter() - t0)
+    rep = evaluate_detections(ds, dets, detector.name, operating_threshold=0.0)
+    if times:
+        t = np.array(times) * 1000
+        rep.fps = float(1000 / t.mean())
+        rep.ms_per_frame = {"mean": float(t.mean()), "p50": float(np.percentile(t, 50)),
+                            "p95": float(np.percentile(t, 95))}
+    return rep

@@ -1,0 +1,129 @@
+"""A compact CenterNet-style detector: one heatmap per class, box size and centre offset.
+
+Why this shape: the RSU camera is static and vehicles are few, small and
+axis-aligned in the image, so an anchor-free single-stage detector with a
+stride-4 output is enough and runs at camera rate on a couple of CPU cores.
+The network is resolution-agnostic; `ModelConfig.input_size` fixes the
+resolution frames are resized to before inference (640x480 -> 320x240 by
+default). Decoding (peak picking, top-k) is plain numpy so that the torch
+and onnx backends share it bit for bit.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import cv2
+import numpy as np
+import torch
+from torch import nn
+
+CLASSES = ("car", "emergency")
+FORMAT = "v2i-centernet/1"  # checkpoint format tag, bumped when the layout changes
+
+
+@dataclass
+class ModelConfig:
+    width: int = 16                      # channels of the first stage; later stages are multiples
+    input_size: tuple[int, int] = (320, 240)  # (W, H) the frame is resized to
+    classes: tuple[str, ...] = CLASSES
+    stride: int = field(default=4, init=False)  # output stride (fixed by the architecture)
+
+    def __post_init__(self):
+        W, H = self.input_size
+        if W % 16 or H % 16 or W <= 0 or H <= 0:
+            raise ValueError(f"input_size must be positive multiples of 16 (the network's coarsest stride), "
+                             f"got {W}x{H}")
+        if self.width < 1 or not self.classes:
+            raise ValueError(f"width must be >= 1 and classes non-empty, got {self.width}, {self.classes}")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["input_size"], d["classes"] = list(self.input_size), list(self.classes)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ModelConfig":
+        return cls(width=int(d["width"]), input_size=tuple(int(x) for x in d["input_size"]),
+                   classes=tuple(d["classes"]))
+
+
+def _conv(cin: int, cout: int, k: int = 3, s: int = 1) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(cin, cout, k, s, k // 2, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+
+
+def _dw(cin: int, cout: int, s: int = 1) -> nn.Sequential:
+    """Depthwise-separable block: cheap spatial mixing, then a pointwise channel mix."""
+    return nn.Sequential(nn.Conv2d(cin, cin, 3, s, 1, groups=cin, bias=False), nn.BatchNorm2d(cin),
+                         nn.ReLU(inplace=True), _conv(cin, cout, 1))
+
+
+class CenterNet(nn.Module):
+    """Input: float RGB in [0, 1], (N, 3, H, W), H and W multiples of 16.
+    Outputs at stride 4: heat (N, C, H/4, W/4) after sigmoid, size (N, 2, ..) as log(w, h) in
+    output cells, offset (N, 2, ..) of the centre within its cell."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        c = cfg.width
+        self.cfg = cfg
+        self.stem = nn.Sequential(_conv(3, c, 3, 2), _dw(c, c))                 # /2
+        self.s4 = nn.Sequential(_dw(c, 2 * c, 2), _dw(2 * c, 2 * c))            # /4
+        self.s8 = nn.Sequential(_dw(2 * c, 4 * c, 2), _dw(4 * c, 4 * c))        # /8
+        self.s16 = nn.Sequential(_dw(4 * c, 8 * c, 2), _dw(8 * c, 8 * c), _dw(8 * c, 8 * c))  # /16
+        self.lat16 = _conv(8 * c, 2 * c, 1)
+        self.lat8 = _conv(4 * c, 2 * c, 1)
+        self.fuse = _dw(2 * c, 2 * c)
+        n = len(cfg.classes)
+        self.heat = nn.Sequential(_conv(2 * c, 2 * c), nn.Conv2d(2 * c, n, 1))
+        self.size = nn.Sequential(_conv(2 * c, 2 * c), nn.Conv2d(2 * c, 2, 1))
+        self.offset = nn.Sequential(_conv(2 * c, 2 * c), nn.Conv2d(2 * c, 2, 1))
+        # focal-loss prior: start with ~1% foreground so early training is stable
+        nn.init.constant_(self.heat[-1].bias, -4.6)
+        self.register_buffer("mean", torch.tensor([0.45, 0.45, 0.45]).view(1, 3, 1, 1))
+        self.register_buffer("std", torch.tensor([0.25, 0.25, 0.25]).view(1, 3, 1, 1))
+
+    def forward(self, x: torch.Tensor):
+        x = (x - self.mean) / self.std
+        f4 = self.s4(self.stem(x))
+        f8 = self.s8(f4)
+        f16 = self.s16(f8)
+        up = nn.functional.interpolate(self.lat16(f16), scale_factor=2.0, mode="nearest") + self.lat8(f8)
+        f = self.fuse(nn.functional.interpolate(up, scale_factor=2.0, mode="nearest") + f4)
+        return torch.sigmoid(self.heat(f)), self.size(f), self.offset(f)
+
+
+def preprocess(rgb: np.ndarray, cfg: ModelConfig) -> tuple[np.ndarray, tuple[float, float]]:
+    """uint8 HxWx3 frame -> float32 (1, 3, h, w) network input and the (sx, sy) scale back to the frame."""
+    W, H = cfg.input_size
+    h0, w0 = rgb.shape[:2]
+    img = rgb if (w0, h0) == (W, H) else cv2.resize(rgb, (W, H), interpolation=cv2.INTER_AREA)
+    x = np.ascontiguousarray(img.transpose(2, 0, 1)[None], dtype=np.float32)
+    x *= 1.0 / 255.0
+    return x, (w0 / W, h0 / H)
+
+
+def decode(heat: np.ndarray, size: np.ndarray, offset: np.ndarray, scale: tuple[float, float], stride: int,
+           classes: tuple[str, ...], score_threshold: float = 0.3, top_k: int = 50):
+    """Network outputs of one image -> list of (u0, v0, u1, v1, label, score) in frame pixels.
+
+    Peaks are cells that equal the max of their 3x3 neighbourhood (the CenterNet NMS)."""
+    heat = heat[0]
+    peaks = np.empty_like(heat)
+    kernel = np.ones((3, 3), np.uint8)
+    for c in range(heat.shape[0]):
+        peaks[c] = cv2.dilate(heat[c], kernel)
+    cand = np.flatnonzero((heat == peaks) & (heat >= score_threshold))
+    if len(cand) == 0:
+        return []
+    scores = heat.reshape(-1)[cand]
+    order = np.argsort(-scores, kind="stable")[:top_k]
+    cand, scores = cand[order], scores[order]
+    C, Hh, Wh = heat.shape
+    cls, rem = np.divmod(cand, Hh * Wh)
+    ys, xs = np.divmod(rem, Wh)
+    ox, oy = offset[0, 0, ys, xs], offset[0, 1, ys, xs]
+    bw, bh = np.exp(np.clip(size[0, 0, ys, xs], -4, 6)), np.exp(np.clip(size[0, 1, ys, xs], -4, 6))
+    cx, cy = (xs + ox) * stride * scale[0], (ys + oy) * stride * scale[1]
+    bw, bh = bw * stride * scale[0], bh * stride * scale[1]
+    return [(float(cx[i] - bw[i] / 2), float(cy[i] - bh[i] / 2), float(cx[i] + bw[i] / 2), float(cy[i] + bh[i] / 2),
+             classes[int(cls[i])], float(scores[i])) for i in range(len(cand))]

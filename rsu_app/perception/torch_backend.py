@@ -1,0 +1,66 @@
+"""The learned detector on PyTorch (CUDA when present, else CPU with a set number of threads)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from rsu_app.perception.detector import Detection, DetectorError, check_frame
+from rsu_app.perception.model import FORMAT, CenterNet, ModelConfig, decode, preprocess
+
+
+def load_weights(weights: str | Path | dict) -> tuple[CenterNet, dict]:
+    """A checkpoint written by `train` -> the network in eval mode and the checkpoint dict."""
+    if isinstance(weights, dict):
+        ckpt = weights
+    else:
+        path = Path(weights)
+        if not path.is_file():
+            raise DetectorError(f"weights file not found: {path}")
+        try:
+            ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as exc:  # torch raises many kinds for a corrupt or foreign file
+            raise DetectorError(f"{path}: not a detector checkpoint ({exc})") from exc
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise DetectorError(f"weights: expected a {FORMAT!r} checkpoint, got format "
+                            f"{ckpt.get('format') if isinstance(ckpt, dict) else type(ckpt).__name__!r}")
+    net = CenterNet(ModelConfig.from_dict(ckpt["config"]))
+    net.load_state_dict(ckpt["state_dict"])
+    return net.eval(), ckpt
+
+
+class TorchDetector:
+    name = "torch"
+
+    def __init__(self, weights: str | Path | dict | None = None, *, device: str = "auto", threads: int | None = None,
+                 score_threshold: float = 0.3, top_k: int = 50, random_weights: bool = False,
+                 config: ModelConfig | None = None):
+        if weights is None and not random_weights:
+            raise DetectorError("torch detector needs weights=PATH (or random_weights=True for timing only)")
+        if weights is not None:
+            self.net, self.checkpoint = load_weights(weights)
+        else:
+            torch.manual_seed(0)
+            self.net, self.checkpoint = CenterNet(config or ModelConfig()).eval(), None
+        self.cfg = self.net.cfg
+        if threads is not None:
+            if threads < 1:
+                raise DetectorError(f"threads must be >= 1, got {threads}")
+            torch.set_num_threads(threads)
+        if device == "auto":
+            device = "cuda" if torch.cuda.is_available() else "cpu"
+        self.device = torch.device(device)
+        self.net.to(self.device)
+        self.score_threshold, self.top_k = score_threshold, top_k
+
+    @torch.inference_mode()
+    def raw(self, rgb: np.ndarray):
+        x, scale = preprocess(check_frame(rgb), self.cfg)
+        heat, size, off = self.net(torch.from_numpy(x).to(self.device))
+        return heat.cpu().numpy(), size.cpu().numpy(), off.cpu().numpy(), scale
+
+    def detect(self, rgb: np.ndarray) -> list[Detection]:
+        heat, size, off, scale = self.raw(rgb)
+        return [Detection((u0, v0, u1, v1), label, score) for u0, v0, u1, v1, label, score in
+                decode(heat, size, off, scale, self.cfg.stride, self.cfg.classes, self.score_threshold, self.top_k)]

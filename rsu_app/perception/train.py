@@ -1,0 +1,228 @@
+"""Training the CenterNet detector on a `v2i dataset` folder.
+
+Deterministic for a given (dataset, seed, epochs, threads, torch build): a
+seeded numpy generator drives sampling and augmentation, torch runs with
+deterministic algorithms, batches are built in this process.
+Augmentation: scale jitter with random placement (one affine warp),
+horizontal flip, brightness/contrast/per-channel gain jitter. Annotations
+flagged "ignore" are masked out of the heatmap loss: the network is neither
+rewarded nor punished for firing on them.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from rsu_app.perception.dataset import Dataset, load_dataset
+from rsu_app.perception.model import FORMAT, CenterNet, ModelConfig
+
+
+def _geometry(rng: np.random.Generator, img: np.ndarray, cfg: ModelConfig, scale_jitter: float,
+              augment: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Frame -> network-input image and the 2x3 matrix taking frame pixels to it.
+
+    Resizing is cv2.resize(INTER_AREA) exactly as `model.preprocess` does at inference, so that the
+    un-jittered training image is bit-identical to what the detector sees; the jitter then rescales,
+    places the result at a random integer offset (cropping or padding with grey) and maybe mirrors it."""
+    W, H = cfg.input_size
+    h0, w0 = img.shape[:2]
+    if not augment:
+        x = cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA) if (w0, h0) != (W, H) else img
+        return x, np.array([[W / w0, 0, 0], [0, H / h0, 0]], np.float64)
+    k = math.exp(rng.uniform(-scale_jitter, scale_jitter))
+    w, h = max(8, round(W * k)), max(8, round(H * k))
+    small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    dx = int(rng.integers(min(0, W - w), max(0, W - w) + 1))
+    dy = int(rng.integers(min(0, H - h), max(0, H - h) + 1))
+    out = np.full((H, W, 3), 114, np.uint8)
+    xs0, ys0 = max(0, -dx), max(0, -dy)  # source window
+    xd0, yd0 = max(0, dx), max(0, dy)  # destination window
+    cw, ch = min(w - xs0, W - xd0), min(h - ys0, H - yd0)
+    out[yd0:yd0 + ch, xd0:xd0 + cw] = small[ys0:ys0 + ch, xs0:xs0 + cw]
+    M = np.array([[w / w0, 0, dx], [0, h / h0, dy]], np.float64)
+    if rng.random() < 0.5:
+        out = np.ascontiguousarray(out[:, ::-1])
+        M = np.array([[-1.0, 0, W], [0, 1, 0]]) @ np.vstack([M, [0, 0, 1]])
+    return out, M
+
+
+def _colour(rng: np.random.Generator, img: np.ndarray) -> np.ndarray:
+    x = img.astype(np.float32)
+    gain = rng.uniform(0.92, 1.08, 3).astype(np.float32) * rng.uniform(0.75, 1.25)
+    mean = x.mean()
+    x = (x - mean) * rng.uniform(0.8, 1.2) + mean
+    x = x * gain + rng.normal(0, 2.0, x.shape).astype(np.float32)
+    return np.clip(x, 0, 255)
+
+
+def _draw_gaussian(heat: np.ndarray, cx: float, cy: float, w: float, h: float) -> None:
+    """Splat an elliptical gaussian (peak 1 at the centre cell) into heat, keeping the max."""
+    Hh, Wh = heat.shape
+    sx, sy = max(0.5, w / 6), max(0.5, h / 6)
+    ix, iy = int(cx), int(cy)
+    rx, ry = int(3 * sx) + 1, int(3 * sy) + 1
+    x0, x1, y0, y1 = max(0, ix - rx), min(Wh, ix + rx + 1), max(0, iy - ry), min(Hh, iy + ry + 1)
+    if x0 >= x1 or y0 >= y1:
+        return
+    xs, ys = np.arange(x0, x1) - ix, np.arange(y0, y1) - iy
+    g = np.exp(-(xs[None, :] ** 2) / (2 * sx * sx) - (ys[:, None] ** 2) / (2 * sy * sy))
+    heat[y0:y1, x0:x1] = np.maximum(heat[y0:y1, x0:x1], g)
+
+
+def make_targets(boxes: np.ndarray, labels: np.ndarray, ignore: np.ndarray, cfg: ModelConfig, max_objs: int = 64):
+    """Boxes (N, 4) in network-input pixels -> heat, heat weight, indices, size, offset, object mask."""
+    W, H = cfg.input_size
+    s = cfg.stride
+    Wh, Hh = W // s, H // s
+    C = len(cfg.classes)
+    heat = np.zeros((C, Hh, Wh), np.float32)
+    weight = np.ones((C, Hh, Wh), np.float32)
+    ind = np.zeros(max_objs, np.int64)
+    size = np.zeros((max_objs, 2), np.float32)
+    offset = np.zeros((max_objs, 2), np.float32)
+    mask = np.zeros(max_objs, np.float32)
+    k = 0
+    for (u0, v0, u1, v1), c, ig in zip(boxes, labels, ignore):
+        u0, v0, u1, v1 = u0 / s, v0 / s, u1 / s, v1 / s
+        if ig:
+            weight[:, max(0, int(v0)):int(math.ceil(v1)), max(0, int(u0)):int(math.ceil(u1))] = 0.0
+            continue
+        w, h = u1 - u0, v1 - v0
+        cx, cy = (u0 + u1) / 2, (v0 + v1) / 2
+        if not (0 <= cx < Wh and 0 <= cy < Hh) or k >= max_objs:
+            continue
+        _draw_gaussian(heat[c], cx, cy, w, h)
+        ind[k] = int(cy) * Wh + int(cx)
+        size[k] = np.log(max(w, 0.25)), np.log(max(h, 0.25))
+        offset[k] = cx - int(cx), cy - int(cy)
+        mask[k] = 1.0
+        k += 1
+    return heat, weight, ind, size, offset, mask
+
+
+def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generator, augment: bool,
+                scale_jitter: float = 0.3, image: np.ndarray | None = None):
+    """One training pair: network input (3, H, W) float32 and its targets."""
+    s = ds.samples[idx]
+    img = s.load() if image is None else image
+    out, M = _geometry(rng, img, cfg, scale_jitter, augment)
+    W, H = cfg.input_size
+    x = (_colour(rng, out) if augment else out.astype(np.float32)) / 255.0
+    cls = {c: i for i, c in enumerate(cfg.classes)}
+    boxes, labels, ignore = [], [], []
+    for t in s.truths:
+        u0, v0, u1, v1 = t.box
+        p = M @ np.array([[u0, u1], [v0, v1], [1, 1]], np.float64)
+        a0, a1 = sorted(p[0])
+        b0, b1 = sorted(p[1])
+        c0, c1, d0, d1 = max(a0, 0), min(a1, W), max(b0, 0), min(b1, H)
+        if c1 - c0 < 1 or d1 - d0 < 1:
+            continue
+        # a box cut to less than half its width or height by the crop teaches nothing reliable: ignore it
+        cut = (c1 - c0) < 0.5 * (a1 - a0) or (d1 - d0) < 0.5 * (b1 - b0)
+        boxes.append((c0, d0, c1, d1))
+        labels.append(cls[t.label])
+        ignore.append(t.ignore or cut)
+    tg = make_targets(np.array(boxes, np.float64).reshape(-1, 4), np.array(labels, np.int64),
+                      np.array(ignore, bool), cfg)
+    return (np.ascontiguousarray(x.transpose(2, 0, 1)), *tg)
+
+
+def focal_loss(pred: torch.Tensor, gt: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """CenterNet's penalty-reduced focal loss, normalised by the number of objects."""
+    pred = pred.clamp(1e-4, 1 - 1e-4)
+    pos = gt.eq(1).float()
+    neg = (1 - pos) * weight
+    pos_loss = torch.log(pred) * (1 - pred) ** 2 * pos
+    neg_loss = torch.log(1 - pred) * pred ** 2 * (1 - gt) ** 4 * neg
+    n = pos.sum()
+    return -(pos_loss.sum() + neg_loss.sum()) / torch.clamp(n, min=1.0)
+
+
+def _gather(feat: torch.Tensor, ind: torch.Tensor) -> torch.Tensor:
+    """(N, 2, H, W) at flat indices (N, K) -> (N, K, 2)."""
+    n, c = feat.shape[:2]
+    flat = feat.view(n, c, -1)
+    return flat.gather(2, ind.unsqueeze(1).expand(n, c, ind.shape[1])).permute(0, 2, 1)
+
+
+def loss_fn(outputs, targets) -> tuple[torch.Tensor, dict[str, float]]:
+    heat_p, size_p, off_p = outputs
+    heat, weight, ind, size, offset, mask = targets
+    lh = focal_loss(heat_p, heat, weight)
+    m = mask.unsqueeze(2)
+    n = torch.clamp(mask.sum(), min=1.0)
+    ls = (torch.abs(_gather(size_p, ind) - size) * m).sum() / (2 * n)
+    lo = (torch.abs(_gather(off_p, ind) - offset) * m).sum() / (2 * n)
+    total = lh + ls + lo
+    return total, {"heat": lh.item(), "size": ls.item(), "offset": lo.item()}
+
+
+def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, seed: int = 0, threads: int = 2,
+          batch_size: int = 8, lr: float = 2e-3, width: int = 16, input_size: tuple[int, int] = (320, 240),
+          augment: bool = True, cache_images: bool = True, command: str | None = None, log=None) -> dict:
+    """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict."""
+    if epochs < 1 or batch_size < 1 or threads < 1:
+        raise ValueError(f"epochs, batch_size and threads must be >= 1, got {epochs}, {batch_size}, {threads}")
+    log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    ds = load_dataset(data)
+    if len(ds) == 0:
+        raise ValueError(f"{data}: the dataset has no images")
+    unknown = {t.label for s in ds.samples for t in s.truths} - set(ModelConfig().classes)
+    if unknown:
+        raise ValueError(f"{data}: labels {sorted(unknown)} are not among the model's classes")
+    torch.set_num_threads(threads)
+    torch.manual_seed(seed)
+    torch.use_deterministic_algorithms(True)
+    rng = np.random.default_rng(seed)
+    cfg = ModelConfig(width=width, input_size=tuple(input_size))
+    net = CenterNet(cfg)
+    opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
+    steps_per_epoch = math.ceil(len(ds) / batch_size)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=epochs * steps_per_epoch,
+                                                pct_start=0.15)
+    images = [s.load() for s in ds.samples] if cache_images else None
+    history = []
+    t_start = time.perf_counter()
+    net.train()
+    for epoch in range(epochs):
+        order = rng.permutation(len(ds))
+        sums: dict[str, float] = {}
+        for b in range(steps_per_epoch):
+            items = [sample_item(ds, int(i), cfg, rng, augment, image=None if images is None else images[int(i)])
+                     for i in order[b * batch_size:(b + 1) * batch_size]]
+            batch = [torch.from_numpy(np.stack(col)) for col in zip(*items)]
+            loss, parts = loss_fn(net(batch[0]), batch[1:])
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+            for k, v in {"loss": loss.item(), **parts}.items():
+                sums[k] = sums.get(k, 0.0) + v / steps_per_epoch
+        history.append({"epoch": epoch + 1, **{k: round(v, 5) for k, v in sums.items()}})
+        log(f"epoch {epoch + 1}/{epochs} " + " ".join(f"{k} {v:.4f}" for k, v in sums.items()))
+    net.eval()
+    ckpt = {
+        "format": FORMAT,
+        "config": cfg.to_dict(),
+        "state_dict": {k: v.detach().clone() for k, v in net.state_dict().items()},
+        "training": {
+            "command": command or " ".join(sys.argv),
+            "seed": seed, "epochs": epochs, "threads": threads, "batch_size": batch_size, "lr": lr,
+            "augment": augment, "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
+            "dataset_info": ds.info, "images": len(ds),
+            "annotations": sum(len(s.truths) for s in ds.samples),
+            "history": history, "seconds": round(time.perf_counter() - t_start, 2),
+            "torch": str(torch.__version__), "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        },
+    }
+    if out is not None:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        torch.save(ckpt, out)
+    return ckpt

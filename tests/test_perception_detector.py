@@ -1,0 +1,105 @@
+"""The Detector interface: backend table, input checks, and the classical baseline on rendered frames."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from rsu_app.perception import Detection, DetectorError, make_detector
+from rsu_app.perception.evaluate import iou_matrix
+
+pytest.importorskip("pybullet")
+
+
+def test_unknown_backend_lists_known():
+    with pytest.raises(DetectorError, match="unknown detector 'yolo'; known: classical, onnx, torch"):
+        make_detector("yolo")
+
+
+@pytest.mark.parametrize("frame,match", [
+    ([[1, 2, 3]], "numpy array"),
+    (np.zeros((48, 64), np.uint8), r"shape \(H, W, 3\)"),
+    (np.zeros((48, 64, 4), np.uint8), r"shape \(H, W, 3\)"),
+    (np.zeros((0, 64, 3), np.uint8), "empty"),
+    (np.zeros((48, 64, 3), np.float32), "uint8"),
+])
+@pytest.mark.parametrize("backend", ["classical", "torch"])
+def test_bad_frames_are_named(backend, frame, match):
+    opts = {"random_weights": True, "threads": 1} if backend == "torch" else {}
+    det = make_detector(backend, **opts)
+    with pytest.raises(DetectorError, match=match):
+        det.detect(frame)
+
+
+@pytest.mark.parametrize("kw,match", [
+    (dict(box=(0, 0, math.nan, 1), label="car", score=1.0), "finite"),
+    (dict(box=(5, 0, 1, 1), label="car", score=1.0), "u1 >= u0"),
+    (dict(box=(0, 0, 1, 1), label="bus", score=1.0), "label"),
+])
+def test_detection_checks(kw, match):
+    with pytest.raises(DetectorError, match=match):
+        Detection(**kw)
+
+
+def test_torch_needs_weights_unless_asked_for_random():
+    with pytest.raises(DetectorError, match="needs weights"):
+        make_detector("torch")
+    with pytest.raises(DetectorError, match="not found"):
+        make_detector("torch", weights="/nonexistent/w.pt")
+
+
+def test_random_weights_find_nothing_in_a_blank_frame():
+    det = make_detector("torch", random_weights=True, threads=1)
+    assert det.detect(np.full((480, 640, 3), 90, np.uint8)) == []
+
+
+@pytest.fixture(scope="module")
+def rendered():
+    """The case-study camera: an empty frame, and one with a car and the emergency vehicle."""
+    from master.world.ground_truth import frame_truth
+    from master.world.layout import Building, CameraSpec, VehicleSpec, WorldLayout
+    from master.world.world import World
+
+    cam = CameraSpec("rsu_cam", 6.5, 6.5, 6.0, yaw=225.0, pitch=-14.0, width=640, height=480, fov_deg=100.0)
+    layout = WorldLayout(buildings=[Building("sw", -30, -30, 48, 48, 15)], cameras=[cam], vehicles={
+        "car": VehicleSpec("car", 4.5, 1.8, 1.5, (0.1, 0.3, 0.85)),
+        "ev": VehicleSpec("ev", 6.5, 2.3, 2.6, (0.9, 0.08, 0.08), kind="emergency", rear_overhang=1.42)})
+    with World(layout) as w:
+        c = w.cameras["rsu_cam"]
+        empty = c.render()
+        w.pose_vehicle("car", 1.75, -15.0, math.pi / 2)
+        w.pose_vehicle("ev", -20.0, -1.75, 0.0)
+        frame = c.render()
+        truth = {t.name: t for t in frame_truth(w.scene, c, frame, occlusion=False)}
+    return empty.rgb, frame.rgb, truth
+
+
+def test_classical_finds_both_vehicles_with_labels(rendered):
+    empty, frame, truth = rendered
+    det = make_detector("classical", background=empty)
+    assert det.detect(empty) == []  # no vehicles, no boxes
+    found = det.detect(frame)
+    assert len(found) == 2, found
+    for name, label in (("car", "car"), ("ev", "emergency")):
+        box = truth[name].visible_box
+        best = max(found, key=lambda d: iou_matrix([d.box], [box])[0, 0])
+        assert iou_matrix([best.box], [box])[0, 0] > 0.85 and best.label == label, (best, box)
+        assert 0 < best.score <= 1
+
+
+def test_classical_mog2_learns_the_background(rendered):
+    empty, frame, _ = rendered
+    det = make_detector("classical")
+    for _ in range(30):
+        det.detect(empty)
+    assert len(det.detect(frame)) == 2
+
+
+def test_classical_background_shape_mismatch(rendered):
+    empty, _, _ = rendered
+    det = make_detector("classical", background=empty)
+    with pytest.raises(DetectorError, match="differs from the background"):
+        det.detect(np.zeros((240, 320, 3), np.uint8))
+    with pytest.raises(DetectorError, match="cannot read background"):
+        make_detector("classical", background="/nonexistent.png")

@@ -1,0 +1,97 @@
+"""AP, ignore handling and recall bins of the detector evaluation, against hand-computed values."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from rsu_app.perception.dataset import Dataset, Sample, Truth
+from rsu_app.perception.detector import Detection
+from rsu_app.perception.evaluate import average_precision, evaluate_detections, iou_matrix
+
+
+def _ds(truths_per_image: list[list[Truth]]) -> Dataset:
+    samples = [Sample(i, None, 640, 480, t) for i, t in enumerate(truths_per_image)]
+    return Dataset(None, samples, {1: "car", 2: "emergency"}, {})
+
+
+def _t(box, label="car", **kw) -> Truth:
+    return Truth(tuple(float(b) for b in box), label, **kw)
+
+
+def _d(box, score, label="car") -> Detection:
+    return Detection(tuple(float(b) for b in box), label, score)
+
+
+def test_iou():
+    m = iou_matrix([[0, 0, 10, 10], [5, 5, 15, 15]], [[0, 0, 10, 10], [10, 10, 20, 20], [0, 0, 0, 0]])
+    assert m[0, 0] == 1.0 and m[0, 1] == 0.0 and m[1, 0] == pytest.approx(25 / 175) and m[1, 1] == pytest.approx(25 / 175)
+    assert m[0, 2] == 0.0  # empty box: no NaN
+
+
+def test_perfect_and_empty():
+    ds = _ds([[_t((10, 10, 50, 40)), _t((100, 100, 180, 150), "emergency")], []])
+    perfect = [[_d((10, 10, 50, 40), 0.9), _d((100, 100, 180, 150), 0.8, "emergency")], []]
+    r = evaluate_detections(ds, perfect)
+    assert r.ap50 == {"car": 1.0, "emergency": 1.0, "overall": 1.0} and r.ap["overall"] == 1.0
+    r = evaluate_detections(ds, [[], []])
+    assert r.ap50["overall"] == 0.0
+    assert r.recall_by_distance[-1]["bin"] == "unknown" and r.recall_by_distance[-1]["recall"] == 0.0
+
+
+def test_false_positive_ranked_first_hand_computed():
+    """Two truths; detections by score: FP, TP, TP. Precision at recall 0.5 and 1.0 is 2/3
+    after making it monotone (1/2 at the first TP, raised to 2/3 by the later point): AP = 2/3."""
+    ds = _ds([[_t((0, 0, 10, 10)), _t((20, 20, 30, 30))]])
+    dets = [[_d((50, 50, 60, 60), 0.9), _d((0, 0, 10, 10), 0.8), _d((20, 20, 30, 30), 0.7)]]
+    r = evaluate_detections(ds, dets)
+    # recall points 0..0.5 (51 of them) and 0.51..1.0 (50) all have interpolated precision 2/3
+    assert r.ap50["car"] == pytest.approx(2 / 3)
+    assert math.isnan(r.ap50["emergency"]) and r.ap50["overall"] == pytest.approx(2 / 3)
+    assert average_precision(np.array([1, 0]), np.array([0.9, 0.8]), 2) == pytest.approx(51 / 101)
+
+
+def test_localisation_error_hurts_strict_thresholds_only():
+    ds = _ds([[_t((0, 0, 100, 100))]])
+    r = evaluate_detections(ds, [[_d((10, 0, 110, 100), 0.9)]])  # IoU 90/110 = 0.818
+    assert r.ap50["car"] == 1.0
+    assert r.ap["car"] == pytest.approx(7 / 10)  # thresholds 0.5 .. 0.80 pass, 0.85 .. 0.95 fail
+
+
+def test_ignored_truths_neither_miss_nor_false_positive():
+    ds = _ds([[_t((0, 0, 10, 10)), _t((200, 200, 204, 203), ignore=True)]])
+    # a detection on the ignored truth, scored above the real one: dropped, AP stays 1
+    r = evaluate_detections(ds, [[_d((200, 200, 204, 203), 0.95), _d((0, 0, 10, 10), 0.5)]])
+    assert r.ap50["car"] == 1.0 and r.truths["car"] == 1
+    # the ignored one not found: not a miss
+    assert evaluate_detections(ds, [[_d((0, 0, 10, 10), 0.5)]]).ap50["car"] == 1.0
+    # the same detection on a truth that is not ignored would be a real truth: recall 1/2 at most
+    ds2 = _ds([[_t((0, 0, 10, 10)), _t((200, 200, 204, 203))]])
+    assert evaluate_detections(ds2, [[_d((0, 0, 10, 10), 0.5)]]).ap50["car"] == pytest.approx(51 / 101)
+
+
+def test_wrong_class_is_false_positive_and_miss():
+    ds = _ds([[_t((0, 0, 10, 10), "emergency")]])
+    r = evaluate_detections(ds, [[_d((0, 0, 10, 10), 0.9, "car")]])
+    assert r.ap50["emergency"] == 0.0 and math.isnan(r.ap50["car"])
+
+
+def test_recall_by_distance_and_occlusion():
+    truths = [[_t((0, 0, 10, 10), distance=5.0, occlusion=0.0), _t((20, 0, 30, 10), distance=25.0, occlusion=0.3),
+               _t((40, 0, 50, 10), distance=45.0, occlusion=0.6), _t((60, 0, 70, 10), distance=80.0, occlusion=0.8),
+               _t((80, 0, 90, 10), distance=85.0, occlusion=0.1)]]
+    dets = [[_d((0, 0, 10, 10), 0.9), _d((40, 0, 50, 10), 0.9), _d((80, 0, 90, 10), 0.2)]]
+    r = evaluate_detections(_ds(truths), dets, operating_threshold=0.3)
+    by_d = {row["bin"]: (row["found"], row["truths"]) for row in r.recall_by_distance}
+    assert by_d == {"0-20": (1, 1), "20-40": (0, 1), "40-60": (1, 1), "60+": (0, 2)}  # 0.2 < threshold
+    by_o = {row["bin"]: (row["found"], row["truths"]) for row in r.recall_by_occlusion}
+    assert by_o == {"0-0.25": (1, 2), "0.25-0.5": (0, 1), "0.5-0.75": (1, 1), "0.75-1": (0, 1)}
+    json.dumps(r.to_dict())  # NaN-free, serialisable
+    assert "recall by distance" in r.table()
+
+
+def test_mismatched_lengths():
+    with pytest.raises(ValueError, match="1 detection lists for 2 images"):
+        evaluate_detections(_ds([[], []]), [[]])

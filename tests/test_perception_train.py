@@ -1,0 +1,144 @@
+"""Training, checkpoints, ONNX export and the CLI on a toy dataset drawn with OpenCV."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from rsu_app.perception import DetectorError, make_detector
+from rsu_app.perception.dataset import DatasetError, load_dataset
+from rsu_app.perception.evaluate import evaluate
+from rsu_app.perception.model import ModelConfig
+from rsu_app.perception.synthetic import write_dataset
+from rsu_app.perception.train import _geometry, train
+
+torch.set_num_threads(1)
+TINY = dict(threads=1, width=8, input_size=(192, 144), batch_size=4, log=lambda m: None)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return write_dataset(tmp_path_factory.mktemp("toy"), n_images=12, seed=3, max_vehicles=2)
+
+
+@pytest.fixture(scope="module")
+def learnt(data, tmp_path_factory):
+    out = tmp_path_factory.mktemp("w") / "w.pt"
+    ckpt = train(data, out, epochs=40, seed=0, augment=False, lr=4e-3, **TINY)
+    return out, ckpt
+
+
+def test_learns_the_toy_set_and_reports_metadata(data, learnt):
+    out, ckpt = learnt
+    hist = ckpt["training"]["history"]
+    assert hist[-1]["loss"] < 0.2 * hist[0]["loss"]
+    det = make_detector("torch", weights=out, threads=1, score_threshold=0.1)
+    rep = evaluate(det, load_dataset(data))
+    assert rep.ap50["car"] > 0.9 and rep.ap50["emergency"] > 0.9, rep.table()
+    empty = [s for s in load_dataset(data).samples if not s.truths]
+    assert empty and all(det.detect(s.load()) == [] for s in empty)  # no vehicles, no boxes
+    tr = ckpt["training"]
+    assert tr["seed"] == 0 and len(tr["dataset_sha256"]) == 64 and tr["images"] == 12 and tr["command"]
+    assert out.stat().st_size < 3_000_000
+
+
+def test_same_seed_same_weights_other_seed_differs(data):
+    a = train(data, None, epochs=1, seed=5, **TINY)["state_dict"]
+    b = train(data, None, epochs=1, seed=5, **TINY)["state_dict"]
+    c = train(data, None, epochs=1, seed=6, **TINY)["state_dict"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+
+
+def test_onnx_matches_torch(learnt, data, tmp_path):
+    from rsu_app.perception.onnx_backend import export_onnx
+
+    out, _ = learnt
+    onnx_path = tmp_path / "w.onnx"
+    export_onnx(out, onnx_path)
+    t = make_detector("torch", weights=out, threads=1, score_threshold=0.1)
+    o = make_detector("onnx", weights=onnx_path, threads=1, score_threshold=0.1)
+    for s in load_dataset(data).samples[:4]:
+        rgb = s.load()
+        rt, ro = t.raw(rgb), o.raw(rgb)
+        assert all(np.abs(x - y).max() < 1e-4 for x, y in zip(rt[:3], ro[:3]))
+        dt, do = t.detect(rgb), o.detect(rgb)
+        assert [d.label for d in dt] == [d.label for d in do]
+        assert np.allclose([d.box for d in dt], [d.box for d in do], atol=0.05)
+    with pytest.raises(DetectorError, match="v2i_config"):
+        import onnx
+        model = onnx.load(onnx_path)
+        del model.metadata_props[:]
+        make_detector("onnx", weights=model.SerializeToString())
+
+
+def test_flip_and_scale_jitter_keep_boxes_on_the_vehicle(data):
+    """Under random flips, scales and placements the transformed box still frames the drawn vehicle:
+    its pixels differ from the empty scene, the pixels just outside it mostly do not."""
+    from rsu_app.perception.synthetic import background
+
+    ds = load_dataset(data)
+    s = next(s for s in ds.samples if len(s.truths) == 1)
+    img, bg = s.load(), background(640, 480, 3)
+    cfg = ModelConfig(width=8, input_size=(192, 144))
+    rng = np.random.default_rng(0)
+    flips = 0
+    for _ in range(12):
+        state = rng.bit_generator.state
+        out, M = _geometry(rng, img, cfg, 0.3, True)
+        rng.bit_generator.state = state
+        out_bg, M_bg = _geometry(rng, bg, cfg, 0.3, True)
+        assert np.array_equal(M, M_bg)
+        flips += M[0, 0] < 0
+        u0, v0, u1, v1 = s.truths[0].box
+        p = M @ np.array([[u0, u1], [v0, v1], [1, 1]])
+        a0, a1 = sorted(p[0])
+        b0, b1 = sorted(p[1])
+        x0, x1, y0, y1 = int(round(a0)), int(round(a1)), int(round(b0)), int(round(b1))
+        if x0 < 2 or y0 < 2 or x1 > 190 or y1 > 142:
+            continue  # cropped: nothing to compare outside
+        diff = np.abs(out.astype(int) - out_bg.astype(int)).max(axis=2) > 30
+        inside = diff[y0 + 1:y1 - 1, x0 + 1:x1 - 1].mean()
+        ring = np.concatenate([diff[y0 - 2, x0:x1], diff[y1 + 1, x0:x1], diff[y0:y1, x0 - 2], diff[y0:y1, x1 + 1]])
+        assert inside > 0.6 and ring.mean() < 0.2, (inside, ring.mean(), M)
+    assert flips > 0
+
+
+def test_bad_dataset_and_config(tmp_path, data):
+    with pytest.raises(DatasetError, match="no annotations.json"):
+        train(tmp_path, None, epochs=1, **TINY)
+    doc = json.loads((data / "annotations.json").read_text())
+    doc["annotations"][0]["bbox"] = [0, 0, math.nan, 5]
+    bad = tmp_path / "bad"
+    (bad / "images").mkdir(parents=True)
+    (bad / "annotations.json").write_text(json.dumps(doc))
+    with pytest.raises(DatasetError, match=r"annotations\[0\]"):
+        load_dataset(bad)
+    with pytest.raises(ValueError, match="multiples of 16"):
+        ModelConfig(input_size=(320, 250))
+    with pytest.raises(DetectorError, match="checkpoint"):
+        (tmp_path / "x.pt").write_bytes(b"not a checkpoint")
+        make_detector("torch", weights=tmp_path / "x.pt")
+
+
+def test_cli_train_eval_export(data, tmp_path, capsys):
+    from master.cli import main
+
+    w = tmp_path / "cli.pt"
+    assert main(["train-detector", "--data", str(data), "--out", str(w), "--epochs", "1", "--threads", "1",
+                 "--width", "8"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    assert torch.load(w, weights_only=True)["training"]["command"].startswith("v2i train-detector")
+    assert main(["eval-detector", "--data", str(data), "--weights", str(w), "--json", "--threads", "1"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["images"] == 12 and set(rep["ap50"]) == {"car", "emergency", "overall"}
+    assert main(["export-detector", "--weights", str(w), "--out", str(tmp_path / "m.onnx")]) == 0
+    assert main(["eval-detector", "--data", str(data), "--detector", "onnx", "--weights",
+                 str(tmp_path / "m.onnx")]) == 0
+    assert "AP50" in capsys.readouterr().out
+    assert main(["eval-detector", "--data", str(data), "--detector", "yolo", "--weights", str(w)]) == 2
+    assert "known: classical, onnx, torch" in capsys.readouterr().err
+    assert main(["eval-detector", "--data", str(tmp_path / "none")]) == 2
