@@ -131,5 +131,23 @@ def main(argv: list[str] | None = None) -> int:
     return args.func(args)
 
 
+def entry() -> None:
+    """The `v2i` console script: main(), then leave without running native libraries' exit code.
+
+    Some native teardown (zenoh's runtime threads, Mesa EGL, the FMUs' shared
+    objects unloaded by dlclose) was seen to abort with a corrupted heap after a
+    run had finished and written everything; the run's outcome is the exit
+    status, so nothing is lost by skipping that teardown.
+    """
+    import logging
+    import os
+
+    code = main()
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    entry()

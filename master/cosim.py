@@ -26,12 +26,15 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable
 
+from bridges.timesync.errors import TimeSyncError
 from master import __version__
 from master.errors import DeadlineMissError, SimulationError
 from master.fmu_runtime import FmuInstance
 from master.pacing import Pacer
+from master.participants import ParticipantBridge
 from master.recorder import METADATA, RunRecorder
 from master.scenario import Scenario
+from master.can_bridge import CanBridge
 from master.serial_bridge import SerialBridges
 from master.stats import percentiles
 
@@ -92,11 +95,15 @@ class CoSimulation:
         self.quiet = quiet
         self._tmp_dirs: list[str] = []
         self.serial = SerialBridges(scenario.serial, scenario.time.mode, quiet)  # serial ports (socket:// URLs)
+        self.can = CanBridge(scenario.can, scenario.time.mode, quiet)  # the CAV's drive-by-wire gateway ([can])
         self.world = None  # master.world.world.WorldParticipant when the scenario has a [world]
         if scenario.world is not None:
             from master.world.world import WorldParticipant
 
             self.world = WorldParticipant(scenario.world, scenario.time.start)
+        # apps over a bus following the master's clock ([bridge], [participants.NAME])
+        self.participants = ParticipantBridge(scenario.participants, scenario.time.mode, scenario.time.rtf,
+                                              scenario.name, quiet)
 
     # -- set-up -------------------------------------------------------------
     def _instantiate(self, members: dict[str, _Member]) -> None:
@@ -218,8 +225,16 @@ class CoSimulation:
                 meta["serial"] = self.serial.open({n: (m.fmu, m.multiple) for n, m in members.items()},
                                                   self.run_dir, t.start)
                 recorder.write_metadata(meta)
+            if self.can:
+                meta["can"] = self.can.open({n: (m.fmu, m.multiple) for n, m in members.items()},
+                                            self.run_dir, t.start, t.step)
+                recorder.write_metadata(meta)
             if self.world:
                 meta["world"] = self.world.open({n: m.fmu for n, m in members.items()}, t.start)
+            if self.participants:
+                recorder.write_metadata(meta)
+                meta["participants"] = self.participants.open(self.run_dir, t.start, t.step)
+                recorder.write_metadata(meta)
             self._read_outputs(members.values(), values)
             recorder.row(t.start, [values[s] for s in record_slots])
 
@@ -233,8 +248,12 @@ class CoSimulation:
             for k in range(n):
                 lag = pacer.wait(k) if pacer else None
                 t_k = start + k * h
+                if self.participants:
+                    self.participants.before_step(k, t_k)
                 if self.serial:
                     self.serial.before_step(k, t_k)
+                if self.can:
+                    self.can.before_step(k, t_k)
                 c0 = time.perf_counter()
                 due = [m for m in ordered if k % m.multiple == 0]
                 if gauss_seidel:
@@ -251,6 +270,8 @@ class CoSimulation:
                 t_next = start + (k + 1) * h
                 if self.serial:
                     self.serial.after_step(k, t_next)
+                if self.can:
+                    self.can.after_step(k, t_next)
                 if self.world:
                     self.world.after_step(k, t_next)
                 recorder.row(t_next, [values[s] for s in record_slots])
@@ -268,6 +289,9 @@ class CoSimulation:
             meta.update(failed_instance=exc.instance, failed_time_s=exc.time, failed_call=exc.call)
         except DeadlineMissError as exc:
             status, error = "failed", str(exc)
+        except TimeSyncError as exc:  # a participant timed out, left, was refused or never joined
+            status, error = "failed", str(exc)
+            meta.update(failed_participant=getattr(exc, "name", None) or getattr(exc, "missing", None))
         except (Interrupted, KeyboardInterrupt):
             status, error = "interrupted", "interrupted by signal"
         except Exception as exc:  # a bug of ours: record it with the data, then let it surface
@@ -277,8 +301,12 @@ class CoSimulation:
             wall = time.perf_counter() - wall0
             if progress is not None:
                 progress.close()
+            if self.participants:
+                meta["participants"] = self.participants.close(status, error)
             if self.serial:
                 meta["serial"] = self.serial.close()
+            if self.can:
+                meta["can"] = self.can.close()
             if self.world:
                 meta["world"] = self.world.close()
             for m in members.values():

@@ -21,7 +21,7 @@ from master.fmu_variables import check_value, family, unsupported_reason
 MODES = ("lockstep", "realtime")
 ORDERINGS = ("jacobi", "gauss-seidel")
 OVERRUN_POLICIES = ("catch-up", "skip", "slip", "abort")
-_TOP_KEYS = ("scenario", "time", "fmus", "connections", "record", "serial", "world")
+_TOP_KEYS = ("scenario", "time", "fmus", "connections", "record", "serial", "world", "bridge", "participants", "can", "v2x")
 _TIME_KEYS = ("start", "stop", "step", "mode", "ordering", "rtf", "overrun")
 _INSTANCE_KEYS = ("fmu", "parameters", "start", "step_multiple")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -81,6 +81,9 @@ class Scenario:
     raw: dict[str, Any]
     serial: dict[str, Any] = field(default_factory=dict)  # name -> master.serial_bridge.SerialSpec
     world: Any = None  # master.world.layout.WorldLayout when the file has a [world] table
+    participants: Any = None  # master.participants.ParticipantsSpec when the file has [bridge]/[participants]
+    can: Any = None  # master.can_bridge.CanConfig when the file has [can]
+    v2x: Any = None  # master.radio_bridge.V2xSpec when the file has [v2x]
 
     def resolved(self) -> dict[str, Any]:
         """The scenario with defaults filled in and FMU paths resolved, for the run folder."""
@@ -98,6 +101,9 @@ class Scenario:
             "record": {"variables": [f"{i}.{v}" for i, v in self.record]},
             **({"serial": {n: s.resolved() for n, s in self.serial.items()}} if self.serial else {}),
             **({"world": self.world.resolved()} if self.world is not None else {}),
+            **({"can": self.can.resolved()} if self.can is not None else {}),
+            **({"v2x": self.v2x.resolved()} if self.v2x is not None else {}),
+            **(self.participants.resolved() if self.participants is not None else {}),
         }
 
 
@@ -195,10 +201,27 @@ class _Validator:
             from master.world.layout import parse_world
 
             world = parse_world(raw["world"], instances, self.problem)
+        participants = None
+        if "bridge" in raw or "participants" in raw:
+            from master.participants import parse_participants
+
+            participants = parse_participants(raw.get("bridge"), raw.get("participants"), self.path.parent,
+                                              self.problem)
+        can = None
+        if "can" in raw:
+            from master.can_bridge import parse_can
+
+            can = parse_can(raw["can"], instances, connections=connections, step=time.step,
+                            base_dir=self.path.parent, path=self.path, problem=self.problem)
+        v2x = None
+        if "v2x" in raw:
+            from master.radio_bridge import parse_v2x
+
+            v2x = parse_v2x(raw["v2x"], instances, self.problem)
         if self.problems:
             raise ScenarioError(self.path, self.problems)
         return Scenario(self.path, str(name), str(description), time, instances, connections, record, raw,
-                        serial=serial, world=world)
+                        serial=serial, world=world, participants=participants, can=can, v2x=v2x)
 
     def number(self, table: dict, key: str, dotted: str, default: float, positive: bool = False) -> float:
         value = table.get(key, default)

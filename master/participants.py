@@ -1,0 +1,436 @@
+"""Participants: the apps (processes or boxes) that follow the master's clock over a bus.
+
+Scenario file::
+
+    [bridge]
+    transport = "zenoh"           # "zenoh" (default), "udp" or "memory" (in-process, tests)
+    prefix = "v2i/ima-1"          # default "v2i/<scenario name>-<random>": parallel runs stay apart
+    listen = ["tcp/0.0.0.0:7447"] # zenoh: where the master listens (a box connects here)
+    connect = []                  # zenoh: endpoints the master (and its child apps) connect to
+    group = "239.255.77.1"        # udp: multicast group and port
+    port = 47000
+    options = {}                  # further transport options, passed through
+    latency = "fixed"             # lockstep latency policy: "fixed" or "measured"
+    join_timeout_s = 10.0         # wall seconds to wait for the required participants
+    heartbeat_s = 0.5             # participant and master heartbeat period
+    heartbeat_timeout_s = 3.0     # silence after which a participant counts as lost
+    on_refused = "wait"           # a refused join (wrong version...): "wait" for a good one, or "fail"
+
+    [participants.rsu1]
+    role = "rsu_app"              # checked against the role the app announces
+    required = true               # false: the run goes on without it (dropped when lost)
+    timeout_s = 5.0               # wall seconds to acknowledge a tick
+    sync_every = 10               # tick at every 10th step
+    latencies = { detect = 0.05, encode = 0.002 }   # fixed policy: simulated seconds per stage
+    command = ["{python}", "-m", "rsu_app"]          # optional: started by the master
+    env = { RSU_CAMERA = "cam1" }
+
+A participant without `command` is one the user starts (or a box on the
+network): the master waits `join_timeout_s` for it. A started one gets the
+bus in its environment: V2I_BUS, V2I_PREFIX, V2I_CONNECT, V2I_BUS_OPTIONS,
+V2I_NAME, V2I_ROLE; its output goes to `participant-<name>.log` in the run
+folder. In lockstep the master ticks at each sync point before stepping and
+waits for the acks; in realtime it publishes ticks and the sim/wall mapping and
+never waits.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import re
+import subprocess
+import sys
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from bridges.timesync.clock import TimeMapping
+from bridges.timesync.coordinator import LATENCY_POLICIES, Coordinator, Expected
+from bridges.timesync.errors import TimeSyncError
+from bridges.timesync.messages import NAME
+
+log = logging.getLogger(__name__)
+
+TRANSPORTS = ("zenoh", "udp", "memory")
+BRIDGE_KEYS = ("transport", "prefix", "listen", "connect", "group", "port", "options", "latency",
+               "join_timeout_s", "heartbeat_s", "heartbeat_timeout_s", "on_refused")
+PARTICIPANT_KEYS = ("role", "required", "timeout_s", "sync_every", "latencies", "command", "env")
+ON_REFUSED = ("wait", "fail")
+_PREFIX = re.compile(r"^[A-Za-z0-9_.\-]+(/[A-Za-z0-9_.\-]+)*$")
+MAP_PERIOD_S = 1.0  # realtime: republish the mapping this often (wall seconds)
+REANCHOR_S = 0.05  # realtime: re-anchor the mapping when the steps drift this far from it
+STOP_GRACE_S = 5.0  # wall seconds a started participant gets to exit after a completed run
+FAILED_GRACE_S = 1.0  # ... after a failed one (it may be the one that hung)
+
+
+@dataclass
+class BridgeSpec:
+    transport: str = "zenoh"
+    prefix: str | None = None  # None: made unique per run
+    listen: list[str] = field(default_factory=list)
+    connect: list[str] = field(default_factory=list)
+    group: str | None = None
+    port: int | None = None
+    options: dict[str, Any] = field(default_factory=dict)
+    latency: str = "fixed"
+    join_timeout_s: float = 10.0
+    heartbeat_s: float = 0.5
+    heartbeat_timeout_s: float = 3.0
+    on_refused: str = "wait"
+
+    def bus_options(self) -> dict[str, Any]:
+        out = dict(self.options)
+        for k in ("listen", "connect"):
+            if getattr(self, k):
+                out[k] = list(getattr(self, k))
+        for k in ("group", "port"):
+            if getattr(self, k) is not None:
+                out[k] = getattr(self, k)
+        return out
+
+    def resolved(self) -> dict[str, Any]:
+        return {"transport": self.transport, "prefix": self.prefix or "auto", **self.bus_options(),
+                "latency": self.latency, "join_timeout_s": self.join_timeout_s, "heartbeat_s": self.heartbeat_s,
+                "heartbeat_timeout_s": self.heartbeat_timeout_s, "on_refused": self.on_refused}
+
+
+@dataclass
+class ParticipantSpec:
+    name: str
+    role: str | None = None
+    required: bool = True
+    timeout_s: float = 5.0
+    sync_every: int = 1
+    latencies: dict[str, float] = field(default_factory=dict)
+    command: list[str] | None = None
+    env: dict[str, str] = field(default_factory=dict)
+
+    def expected(self) -> Expected:
+        return Expected(self.name, self.role, self.required, self.timeout_s, self.sync_every, dict(self.latencies))
+
+    def resolved(self) -> dict[str, Any]:
+        out = {"role": self.role, "required": self.required, "timeout_s": self.timeout_s,
+               "sync_every": self.sync_every, "latencies": dict(self.latencies)}
+        if self.command:
+            out["command"] = list(self.command)
+        if self.env:
+            out["env"] = dict(self.env)
+        return {k: v for k, v in out.items() if v is not None}
+
+
+@dataclass
+class ParticipantsSpec:
+    bridge: BridgeSpec
+    participants: dict[str, ParticipantSpec]
+    base_dir: Path = Path(".")
+
+    def resolved(self) -> dict[str, Any]:
+        return {"bridge": self.bridge.resolved(),
+                "participants": {n: p.resolved() for n, p in self.participants.items()}}
+
+
+# -- validation ----------------------------------------------------------------------
+def parse_participants(bridge: Any, participants: Any, base_dir: Path,
+                       problem: Callable[[str, str], None]) -> ParticipantsSpec:
+    """Validate `[bridge]` and `[participants.NAME]`; every problem goes to `problem(key, message)`."""
+    b = _parse_bridge(bridge if bridge is not None else {}, problem)
+    specs: dict[str, ParticipantSpec] = {}
+    if participants is not None and not isinstance(participants, dict):
+        problem("participants", f"expected a table of [participants.NAME] tables, got {type(participants).__name__}")
+        participants = {}
+    for name, table in (participants or {}).items():
+        spec = _parse_participant(name, table, problem)
+        if spec is None:
+            continue
+        if spec.command and b.transport == "memory":
+            problem(f"participants.{name}.command", "the memory transport only reaches this process; "
+                                                    "a started participant needs transport = \"zenoh\" or \"udp\"")
+        specs[name] = spec
+    return ParticipantsSpec(b, specs, base_dir)
+
+
+def _seconds(table: dict, key: str, dotted: str, default: float, problem, allow_zero: bool = False) -> float:
+    value = table.get(key, default)
+    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+    if not ok or value < 0 or (value == 0 and not allow_zero) or value > 86400:
+        problem(dotted, f"expected wall-clock seconds {'>= 0' if allow_zero else '> 0'} (at most 86400), got {value!r}")
+        return default
+    return float(value)
+
+
+def _endpoints(table: dict, key: str, problem) -> list[str]:
+    value = table.get(key, [])
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+        problem(f"bridge.{key}", f"expected an endpoint string or a list of them (e.g. \"tcp/10.0.0.1:7447\"), "
+                                 f"got {value!r}")
+        return []
+    return list(value)
+
+
+def _parse_bridge(table: Any, problem) -> BridgeSpec:
+    if not isinstance(table, dict):
+        problem("bridge", f"expected a table, got {type(table).__name__}")
+        return BridgeSpec()
+    for k in table:
+        if k not in BRIDGE_KEYS:
+            problem(f"bridge.{k}", f"unknown key (expected one of: {', '.join(BRIDGE_KEYS)})")
+    d = BridgeSpec()
+    spec = BridgeSpec(listen=_endpoints(table, "listen", problem), connect=_endpoints(table, "connect", problem))
+    spec.transport = table.get("transport", d.transport)
+    if spec.transport not in TRANSPORTS:
+        problem("bridge.transport", f"expected one of {', '.join(TRANSPORTS)}, got {spec.transport!r}")
+        spec.transport = d.transport
+    prefix = table.get("prefix")
+    if prefix is not None and (not isinstance(prefix, str) or not _PREFIX.match(prefix)):
+        problem("bridge.prefix", f"expected key chunks like \"v2i/run1\" (letters, digits, _ . -; no wildcards, "
+                                 f"no leading or trailing /), got {prefix!r}")
+    else:
+        spec.prefix = prefix
+    group = table.get("group")
+    if group is not None and not (isinstance(group, str) and group):
+        problem("bridge.group", f"expected a multicast group address string, got {group!r}")
+    else:
+        spec.group = group
+    port = table.get("port")
+    if port is not None and (isinstance(port, bool) or not isinstance(port, int) or not 1 <= port <= 65535):
+        problem("bridge.port", f"expected a port number 1..65535, got {port!r}")
+    else:
+        spec.port = port
+    options = table.get("options", {})
+    if not isinstance(options, dict):
+        problem("bridge.options", f"expected a table of transport options, got {type(options).__name__}")
+    else:
+        spec.options = dict(options)
+    spec.latency = table.get("latency", d.latency)
+    if spec.latency not in LATENCY_POLICIES:
+        problem("bridge.latency", f"expected one of {', '.join(LATENCY_POLICIES)}, got {spec.latency!r}")
+        spec.latency = d.latency
+    spec.on_refused = table.get("on_refused", d.on_refused)
+    if spec.on_refused not in ON_REFUSED:
+        problem("bridge.on_refused", f"expected one of {', '.join(ON_REFUSED)}, got {spec.on_refused!r}")
+        spec.on_refused = d.on_refused
+    spec.join_timeout_s = _seconds(table, "join_timeout_s", "bridge.join_timeout_s", d.join_timeout_s, problem)
+    spec.heartbeat_s = _seconds(table, "heartbeat_s", "bridge.heartbeat_s", d.heartbeat_s, problem)
+    spec.heartbeat_timeout_s = _seconds(table, "heartbeat_timeout_s", "bridge.heartbeat_timeout_s",
+                                        d.heartbeat_timeout_s, problem)
+    if spec.heartbeat_timeout_s <= spec.heartbeat_s:
+        problem("bridge.heartbeat_timeout_s", f"must be longer than heartbeat_s ({spec.heartbeat_s:g} s), "
+                                              f"got {spec.heartbeat_timeout_s:g}")
+    return spec
+
+
+def _parse_participant(name: str, table: Any, problem) -> ParticipantSpec | None:
+    key = f"participants.{name}"
+    if not NAME.match(name):
+        problem(key, "participant names must be letters, digits, _ or - (at most 64; they are key chunks)")
+        return None
+    if not isinstance(table, dict):
+        problem(key, f"expected a table, got {type(table).__name__}")
+        return None
+    for k in table:
+        if k not in PARTICIPANT_KEYS:
+            problem(f"{key}.{k}", f"unknown key (expected one of: {', '.join(PARTICIPANT_KEYS)})")
+    spec = ParticipantSpec(name)
+    role = table.get("role")
+    if role is not None and not (isinstance(role, str) and role):
+        problem(f"{key}.role", f"expected a role name such as \"rsu_app\", got {role!r}")
+    else:
+        spec.role = role
+    required = table.get("required", True)
+    if not isinstance(required, bool):
+        problem(f"{key}.required", f"expected true or false, got {required!r}")
+    else:
+        spec.required = required
+    spec.timeout_s = _seconds(table, "timeout_s", f"{key}.timeout_s", spec.timeout_s, problem)
+    every = table.get("sync_every", 1)
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        problem(f"{key}.sync_every", f"expected an integer >= 1 (steps between ticks), got {every!r}")
+    else:
+        spec.sync_every = every
+    latencies = table.get("latencies", {})
+    if not isinstance(latencies, dict):
+        problem(f"{key}.latencies", f"expected a table of stage = simulated seconds, got {type(latencies).__name__}")
+    else:
+        for stage, value in latencies.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+                problem(f"{key}.latencies.{stage}", f"expected simulated seconds >= 0, got {value!r}")
+            else:
+                spec.latencies[stage] = float(value)
+    command = table.get("command")
+    if command is not None:
+        if not isinstance(command, list) or not command or not all(isinstance(c, str) and c for c in command):
+            problem(f"{key}.command", f"expected a non-empty list of strings (\"{{python}}\" is this Python), "
+                                      f"got {command!r}")
+        else:
+            spec.command = list(command)
+    env = table.get("env", {})
+    if not isinstance(env, dict) or not all(isinstance(v, str) for v in env.values()):
+        problem(f"{key}.env", f"expected a table of NAME = \"string\", got {env!r}")
+    else:
+        spec.env = dict(env)
+    return spec
+
+
+# -- the bridge in the master loop ----------------------------------------------------------
+class ParticipantBridge:
+    """Time protocol of one run; inert (and free) when the scenario has no participants."""
+
+    def __init__(self, spec: ParticipantsSpec | None, mode: str, rtf: float, run_name: str, quiet: bool = True):
+        self.spec, self.mode, self.rtf, self.quiet = spec, mode, rtf, quiet
+        self.prefix = None
+        if spec is not None:
+            safe = re.sub(r"[^A-Za-z0-9_.\-]", "_", run_name) or "run"
+            self.prefix = spec.bridge.prefix or f"v2i/{safe}-{uuid.uuid4().hex[:8]}"
+        self.bus = None
+        self.coordinator: Coordinator | None = None
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.logs: dict[str, Path] = {}
+        self.exits: dict[str, dict[str, Any]] = {}
+        self._ended = False
+        self._step = 0.0
+        self._mapping: TimeMapping | None = None
+        self._map_sent = 0
+        self._last_check = 0.0
+
+    def __bool__(self) -> bool:
+        return self.spec is not None and bool(self.spec.participants)
+
+    # -- hooks ---------------------------------------------------------------------------
+    def open(self, run_dir: Path, t0: float, step: float) -> dict[str, Any]:
+        from bridges.transport import TransportError, open_bus
+
+        b = self.spec.bridge
+        self._step = step
+        try:
+            self.bus = open_bus(b.transport, prefix=self.prefix, sender="master", **b.bus_options())
+        except (TransportError, OSError, ValueError, TypeError) as exc:  # port taken, bad endpoint, bad option
+            raise TimeSyncError(f"[bridge]: cannot open the {b.transport} bus ({b.bus_options()}): {exc}") from exc
+        self.coordinator = Coordinator(
+            self.bus, [p.expected() for p in self.spec.participants.values()], mode=self.mode,
+            latency_policy=b.latency, heartbeat_s=b.heartbeat_s, heartbeat_timeout_s=b.heartbeat_timeout_s,
+            master_timeout_s=max(10.0, 4 * b.heartbeat_timeout_s), on_refused=b.on_refused, poll=self._poll)
+        self.coordinator.start()
+        for p in self.spec.participants.values():
+            if p.command:
+                self._start(p, Path(run_dir))
+        self.coordinator.wait_for_participants(b.join_timeout_s)
+        return self.report()
+
+    def before_step(self, k: int, t: float) -> None:
+        if self.mode == "lockstep":
+            self.coordinator.tick(k, t, self._step)
+            return
+        now = self.coordinator.clock_ns()
+        m = self._mapping
+        if m is None or abs(now - m.master_ns(t)) > REANCHOR_S * 1e9:
+            self._mapping = m = TimeMapping(t, now, self.rtf)
+            self._map_sent = 0
+        if now - self._map_sent >= MAP_PERIOD_S * 1e9:
+            self.coordinator.publish_mapping(m.t_sim0, m.wall0_ns, m.rtf)
+            self._map_sent = now
+        if any(k % p.sync_every == 0 for p in self.spec.participants.values()):
+            self.coordinator.announce(k, t, self._step)
+        if time.monotonic() - self._last_check > 0.05:
+            self._last_check = time.monotonic()
+            self.coordinator.check()
+
+    def after_step(self, k: int, t_next: float) -> None:
+        """Nothing: participants see the state of t_next at the next tick."""
+
+    def close(self, status: str = "completed", error: str | None = None) -> dict[str, Any]:
+        self._ended = True
+        if self.coordinator is not None:
+            self.coordinator.end(status, error or "")
+        self._stop_processes(STOP_GRACE_S if status == "completed" else FAILED_GRACE_S)
+        if self.coordinator is not None:
+            self.coordinator.close()
+        report = self.report()
+        if self.bus is not None:
+            try:
+                report["bus"] = self.bus.stats()
+            except Exception as exc:  # stats are a nicety; the bus may be half gone
+                report["bus"] = {"error": str(exc)}
+            self.bus.close()
+        return report
+
+    def report(self) -> dict[str, Any]:
+        b = self.spec.bridge
+        out = {"transport": b.transport, "prefix": self.prefix, "endpoints": b.bus_options()}
+        if self.coordinator is not None:
+            out.update(self.coordinator.report())
+        for name, member in out.get("members", {}).items():
+            if name in self.logs:
+                member["log"] = self.logs[name].name
+            if name in self.exits:
+                member["process"] = self.exits[name]
+        return out
+
+    # -- started participants ---------------------------------------------------------------------
+    def child_env(self, p: ParticipantSpec) -> dict[str, str]:
+        b = self.spec.bridge
+        options = b.bus_options()
+        options.pop("listen", None)  # the master listens; a child connects
+        connect = list(b.connect) or [_reachable(e) for e in b.listen]
+        options.pop("connect", None)
+        env = dict(os.environ)
+        env.update({"V2I_BUS": b.transport, "V2I_PREFIX": self.prefix, "V2I_CONNECT": ",".join(connect),
+                    "V2I_BUS_OPTIONS": json.dumps(options), "V2I_NAME": p.name, "V2I_ROLE": p.role or "",
+                    "PYTHONUNBUFFERED": "1"})
+        env.update(p.env)
+        return env
+
+    def _start(self, p: ParticipantSpec, run_dir: Path) -> None:
+        argv = [c.replace("{python}", sys.executable).replace("{name}", p.name) for c in p.command]
+        path = run_dir / f"participant-{p.name}.log"
+        self.logs[p.name] = path
+        with open(path, "wb") as out:
+            try:
+                self.procs[p.name] = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                                      env=self.child_env(p), cwd=self.spec.base_dir)
+            except OSError as exc:
+                self.coordinator.lose(p.name, f"could not start {argv[0]!r}: {exc}")
+                return
+        log.info("started participant '%s' (pid %d): %s", p.name, self.procs[p.name].pid, " ".join(argv))
+
+    def _poll(self) -> None:
+        """Called while the coordinator waits: a started participant whose process died is lost now."""
+        if self._ended:
+            return
+        for name, proc in self.procs.items():
+            rc = proc.poll()
+            if rc is None or name in self.exits:
+                continue
+            self.exits[name] = {"pid": proc.pid, "returncode": rc, "during_run": True}
+            refusals = [r["reason"] for r in self.coordinator.refused if r["name"] == name]
+            why = f"; it was refused: {refusals[-1]}" if refusals else ""
+            self.coordinator.lose(name, f"its process exited with code {rc} "
+                                        f"(see {self.logs[name].name} in the run folder){why}")
+
+    def _stop_processes(self, grace_s: float) -> None:
+        deadline = time.monotonic() + grace_s
+        for name, proc in self.procs.items():
+            how = "exited"
+            try:
+                proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                how = "terminated"
+                proc.terminate()
+                try:
+                    proc.wait(timeout=2.0)
+                except subprocess.TimeoutExpired:
+                    how = "killed"
+                    proc.kill()
+                    proc.wait()
+            entry = self.exits.setdefault(name, {"pid": proc.pid, "returncode": proc.returncode, "during_run": False})
+            entry.update(returncode=proc.returncode, stopped=how)
+
+
+def _reachable(endpoint: str) -> str:
+    """A listen endpoint as a local child can connect to it (0.0.0.0 / [::] -> loopback)."""
+    return endpoint.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]")
