@@ -31,7 +31,10 @@ from master import __version__
 from master.errors import DeadlineMissError, SimulationError
 from master.fmu_runtime import FmuInstance
 from master.pacing import Pacer
+from master.events import EventLog
 from master.participants import ParticipantBridge
+from master.radio_bridge import RadioBridge
+from master.streams import SensorStreams
 from master.recorder import METADATA, RunRecorder
 from master.scenario import Scenario
 from master.can_bridge import CanBridge
@@ -101,6 +104,9 @@ class CoSimulation:
             from master.world.world import WorldParticipant
 
             self.world = WorldParticipant(scenario.world, scenario.time.start)
+        self.streams = None  # master.streams.SensorStreams: world sensors published on the bus
+        self.radio = None  # master.radio_bridge.RadioBridge when the scenario has [v2x]
+        self.events = None  # master.events.EventLog of the bridges
         # apps over a bus following the master's clock ([bridge], [participants.NAME])
         self.participants = ParticipantBridge(scenario.participants, scenario.time.mode, scenario.time.rtf,
                                               scenario.name, quiet)
@@ -229,12 +235,22 @@ class CoSimulation:
                 meta["can"] = self.can.open({n: (m.fmu, m.multiple) for n, m in members.items()},
                                             self.run_dir, t.start, t.step)
                 recorder.write_metadata(meta)
-            if self.world:
-                meta["world"] = self.world.open({n: m.fmu for n, m in members.items()}, t.start)
             if self.participants:
                 recorder.write_metadata(meta)
                 meta["participants"] = self.participants.open(self.run_dir, t.start, t.step)
                 recorder.write_metadata(meta)
+            if self.world:
+                if self.participants.bus is not None:  # the world's sensors reach the apps over the bus
+                    self.streams = SensorStreams(self.participants.bus, sc.participants.bridge.camera_encoding)
+                    self.world.listeners.append(self.streams)
+                meta["world"] = self.world.open({n: m.fmu for n, m in members.items()}, t.start)
+                if self.streams is not None:
+                    self.streams.labels.update(self.world.world.scene.labels)
+            if sc.v2x is not None:
+                self.events = EventLog(self.run_dir)
+                self.radio = RadioBridge(sc.v2x, self.participants.bus, self.events)
+                meta["v2x"] = self.radio.open({n: m.fmu for n, m in members.items()}, t.start,
+                                              self.world.world if self.world else None)
             self._read_outputs(members.values(), values)
             recorder.row(t.start, [values[s] for s in record_slots])
 
@@ -274,6 +290,8 @@ class CoSimulation:
                     self.can.after_step(k, t_next)
                 if self.world:
                     self.world.after_step(k, t_next)
+                if self.radio is not None:
+                    self.radio.after_step(k, t_next)
                 recorder.row(t_next, [values[s] for s in record_slots])
                 steps_done = k + 1
                 c1 = time.perf_counter()
@@ -301,6 +319,10 @@ class CoSimulation:
             wall = time.perf_counter() - wall0
             if progress is not None:
                 progress.close()
+            if self.radio is not None:
+                meta["v2x"] = {**self.radio.close(), "events": self.events.close()}
+            if self.streams is not None:
+                meta["streams"] = self.streams.report()
             if self.participants:
                 meta["participants"] = self.participants.close(status, error)
             if self.serial:

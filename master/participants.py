@@ -57,7 +57,7 @@ log = logging.getLogger(__name__)
 
 TRANSPORTS = ("zenoh", "udp", "memory")
 BRIDGE_KEYS = ("transport", "prefix", "listen", "connect", "group", "port", "options", "latency",
-               "join_timeout_s", "heartbeat_s", "heartbeat_timeout_s", "on_refused")
+               "join_timeout_s", "heartbeat_s", "heartbeat_timeout_s", "on_refused", "camera_encoding")
 PARTICIPANT_KEYS = ("role", "required", "timeout_s", "sync_every", "latencies", "command", "env")
 ON_REFUSED = ("wait", "fail")
 _PREFIX = re.compile(r"^[A-Za-z0-9_.\-]+(/[A-Za-z0-9_.\-]+)*$")
@@ -81,6 +81,7 @@ class BridgeSpec:
     heartbeat_s: float = 0.5
     heartbeat_timeout_s: float = 3.0
     on_refused: str = "wait"
+    camera_encoding: str = "raw"  # camera frames on the bus: raw, jpeg or off
 
     def bus_options(self) -> dict[str, Any]:
         out = dict(self.options)
@@ -95,7 +96,8 @@ class BridgeSpec:
     def resolved(self) -> dict[str, Any]:
         return {"transport": self.transport, "prefix": self.prefix or "auto", **self.bus_options(),
                 "latency": self.latency, "join_timeout_s": self.join_timeout_s, "heartbeat_s": self.heartbeat_s,
-                "heartbeat_timeout_s": self.heartbeat_timeout_s, "on_refused": self.on_refused}
+                "heartbeat_timeout_s": self.heartbeat_timeout_s, "on_refused": self.on_refused,
+                "camera_encoding": self.camera_encoding}
 
 
 @dataclass
@@ -215,6 +217,10 @@ def _parse_bridge(table: Any, problem) -> BridgeSpec:
     if spec.on_refused not in ON_REFUSED:
         problem("bridge.on_refused", f"expected one of {', '.join(ON_REFUSED)}, got {spec.on_refused!r}")
         spec.on_refused = d.on_refused
+    spec.camera_encoding = table.get("camera_encoding", d.camera_encoding)
+    if spec.camera_encoding not in ("raw", "jpeg", "off"):
+        problem("bridge.camera_encoding", f"expected one of raw, jpeg, off, got {spec.camera_encoding!r}")
+        spec.camera_encoding = d.camera_encoding
     spec.join_timeout_s = _seconds(table, "join_timeout_s", "bridge.join_timeout_s", d.join_timeout_s, problem)
     spec.heartbeat_s = _seconds(table, "heartbeat_s", "bridge.heartbeat_s", d.heartbeat_s, problem)
     spec.heartbeat_timeout_s = _seconds(table, "heartbeat_timeout_s", "bridge.heartbeat_timeout_s",
@@ -299,7 +305,8 @@ class ParticipantBridge:
         self._last_check = 0.0
 
     def __bool__(self) -> bool:
-        return self.spec is not None and bool(self.spec.participants)
+        """A [bridge] table opens the bus, with or without time-regulated participants."""
+        return self.spec is not None
 
     # -- hooks ---------------------------------------------------------------------------
     def open(self, run_dir: Path, t0: float, step: float) -> dict[str, Any]:

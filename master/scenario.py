@@ -218,6 +218,8 @@ class _Validator:
             from master.radio_bridge import parse_v2x
 
             v2x = parse_v2x(raw["v2x"], instances, self.problem)
+            if "bridge" not in raw:
+                self.problem("v2x", "needs a [bridge] table: apps transmit and receive over the bus")
         if self.problems:
             raise ScenarioError(self.path, self.problems)
         return Scenario(self.path, str(name), str(description), time, instances, connections, record, raw,

@@ -91,6 +91,8 @@ class WorldParticipant:
         self._gnss_err2: dict[str, list[float]] = {}
         self.scans: dict[str, list[tuple[float, dict[str, int]]]] = {}  # lidar -> (t, rays per vehicle hit)
         self.signal_log: list[tuple[float, str, int]] = []  # (t, head, new state)
+        # called as listener(kind, name, t, data) for each camera Frame, lidar Scan and GNSS Fix
+        self.listeners: list[Any] = []
 
     def open(self, fmus: dict[str, Any], t: float) -> dict[str, Any]:
         self.world = World(self.layout)
@@ -134,17 +136,21 @@ class WorldParticipant:
             if not schedule.due(t_next):
                 continue
             if kind == "camera":
-                w.cameras[name].render(t_next)
+                data = w.cameras[name].render(t_next)
             elif kind == "lidar":
-                self.scans[name].append((t_next, w.hits_by_vehicle(w.scan(name, t_next))))
+                data = w.scan(name, t_next)
+                self.scans[name].append((t_next, w.hits_by_vehicle(data)))
             else:
-                self._take_fix(name, t_next)
+                data = self._take_fix(name, t_next)
+            for listener in self.listeners:
+                listener(kind, name, t_next, data)
 
     def _take_fix(self, name: str, t: float) -> None:
         x, y, yaw, v = self.world.scene.poses[name]
         fix = self.gnss[name].fix(t, x, y, self.layout.vehicles[name].height, yaw, v)
         self.fixes[name].append(fix)
         self._gnss_err2[name].append((fix.x - x) ** 2 + (fix.y - y) ** 2)
+        return fix
 
     def lidar_metadata(self, name: str) -> dict[str, Any]:
         lidar = self.world.lidars[name]
