@@ -30,6 +30,9 @@ bench: fmus
 	$(BIN)/python benchmarks/j2735_codec.py
 	$(BIN)/python benchmarks/serial_link.py
 	$(BIN)/python benchmarks/channel.py
+	$(BIN)/python benchmarks/world.py
+	$(BIN)/python benchmarks/bridges.py
+	$(BIN)/python benchmarks/perception.py
 
 clean:
 	rm -rf build runs

@@ -17,7 +17,7 @@ Per case and size:
 Figures are medians over repeats (max: the largest), with ratios to the floor of the same size.
 
 Lockstep ticks per second with 1, 2 and 8 participants is the time protocol's part:
-`bench_lockstep` below is where it goes. Results: benchmarks/results/bridges.json.
+`bench_lockstep` below measures it with bridges.timesync.bench. Results: benchmarks/results/bridges.json.
 """
 from __future__ import annotations
 
@@ -283,13 +283,25 @@ def run_floor(pings: dict, floods: dict) -> dict:
 
 
 def bench_lockstep(backends: tuple[str, ...], participants: tuple[int, ...] = (1, 2, 8), quick: bool = False) -> dict:
-    """Lockstep ticks per second with 1, 2 and 8 participants, per backend.
+    """Lockstep ticks per second with 1, 2 and 8 echo participants (separate processes; memory: threads)."""
+    from bridges.timesync.bench import bench_lockstep as one
 
-    PLACEHOLDER for the time protocol (bridges/time protocol helper): start `n` participant processes
-    that join the master's lockstep, run a fixed number of ticks, and return
-    {backend: {n: {"ticks_per_s": ..., "ack_p50_us": ..., "ack_p99_us": ...}}}.
-    """
-    return {"status": "not measured yet: filled in with the time protocol", "participants": list(participants)}
+    seconds = 0.5 if quick else 2.0
+    out: dict = {}
+    for backend in ("memory", *backends):
+        out[backend] = {}
+        for n in participants:
+            r = one(n, backend, seconds=seconds)
+            out[backend][n] = {"ticks_per_s": r["ticks_per_s"], "tick_resends": r["tick_resends"]}
+    return out
+
+
+def print_lockstep(lockstep: dict) -> None:
+    ns = sorted({n for per in lockstep.values() for n in per})
+    print("\nlockstep ticks per second (master tick -> every participant's ack)")
+    print("backend   " + "".join(f"{n:>10d} p" for n in ns))
+    for backend, per in lockstep.items():
+        print(f"{backend:8s}  " + "".join(f"{per[n]['ticks_per_s']:>12.0f}" for n in ns))
 
 
 # -- report ------------------------------------------------------------------------------------
@@ -352,8 +364,8 @@ def main(argv: list[str] | None = None) -> int:
             ratio = f"{row['p50_us'] / floor:6.1f}" if floor else "     -"
             print(f"{label:<6} {case:<8} {row['p50_us']:9.1f} {row['p99_us']:9.1f} {row['max_us']:9.1f} {ratio} "
                   f"{row.get('msgs_per_s', 0):10.0f} {row.get('mb_per_s', 0):8.1f} {row.get('delivered', 0):6.2f}")
-    lockstep = bench_lockstep(tuple(c for c in cases if c != "floor"), quick=args.quick)
-    print(f"\nlockstep ticks/s: {lockstep.get('status', lockstep)}")
+    lockstep = bench_lockstep(tuple(c for c in cases if c in ("zenoh", "udp")), quick=args.quick)
+    print_lockstep(lockstep)
     report = {"benchmark": "bridges", "machine": info, "repeats": args.repeats, "pings": pings, "floods": floods,
               "floor": {"200 B": "UDP datagram ping-pong", "frame": "TCP with a 5-byte length prefix"},
               "results": results, "lockstep": lockstep, "runtime_s": time.perf_counter() - t_start}

@@ -1,0 +1,175 @@
+"""Benchmark: the RSU perception design space (the seed paper's Table 2, on this machine's CPU).
+
+    python benchmarks/perception.py [--data /work/data/heldout] [--frames 200] [--threads 1 2]
+                                    [--json PATH] [--quick]
+
+For each backend (torch and onnx with the shipped weights, the classical
+background-subtraction baseline with each frame's empty-scene image) and
+each CPU thread count, over the first N frames of a `v2i dataset` folder
+(default the held-out set, 640x480), the median time per frame of each stage:
+
+    pre-process   resize to the network input and scale to float (learned); none (classical)
+    inference     the network (torch forward / onnxruntime run); the foreground mask (classical)
+    post-process  heatmap peaks -> boxes (learned); blobs -> boxes and labels (classical)
+    projection    every box to a ground point (geo.box_to_ground, heading search: no track yet)
+    tracking      Tracker.update with the frame's ground points (frames are independent scenes
+                  stepped at 10 Hz, so most detections open tracks: an upper bound on its cost)
+
+FPS = 1000 / (sum of the stage medians); "detector FPS" leaves out projection and
+tracking. AP@0.5 beside each row comes from the same run's detections (score
+threshold 0.05, as `v2i eval-detector`). The reference rows are the seed
+paper's (ANCHORS I6/I7): YOLOv7 at 3.6 s/frame on an 8-core CPU, 30 FPS on a
+GTX 1650, 10 FPS on a Zynq 7020, and the 10 FPS the 10 Hz BSMs need; ratio =
+FPS / the paper's CPU FPS. Results go to JSON (default
+benchmarks/results/perception.json). `--quick`: 40 frames, 1 thread only.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:  # run as a plain script from anywhere
+    sys.path.insert(0, str(ROOT))
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from benchmarks.common import RESULTS, machine_info, write_report  # noqa: E402
+from rsu_app.perception.dataset import Dataset, load_dataset  # noqa: E402
+from rsu_app.perception.detector import Detection, make_detector  # noqa: E402
+from rsu_app.perception.evaluate import evaluate_detections  # noqa: E402
+from rsu_app.perception.geo import CameraModel, GeoError, box_to_ground  # noqa: E402
+from rsu_app.perception.model import decode, preprocess  # noqa: E402
+from rsu_app.perception.tracker import GroundDetection, Tracker  # noqa: E402
+
+PAPER_CPU_S = 3.6  # ANCHORS I6: YOLOv7 on an 8-core CPU, s per frame
+PAPER = [("seed paper YOLOv7, 8-core CPU", 1 / PAPER_CPU_S), ("seed paper YOLOv7, GTX 1650 GPU", 30.0),
+         ("seed paper YOLOv7, Zynq 7020 FPGA", 10.0), ("requirement (10 Hz BSMs)", 10.0)]
+STAGES = ("preprocess", "inference", "postprocess", "projection", "tracking")
+SCORE = 0.05
+
+
+def _learned_stages(det, rgb):
+    """(detections, [pre, inf, post] seconds) for the torch or onnx backend, stage by stage."""
+    t0 = time.perf_counter()
+    x, scale = preprocess(rgb, det.cfg)
+    t1 = time.perf_counter()
+    if det.name == "torch":
+        import torch
+
+        with torch.inference_mode():
+            heat, size, off = (o.numpy() for o in det.net(torch.from_numpy(x)))
+    else:
+        heat, size, off = det.session.run(["heat", "size", "offset"], {"image": x})
+    t2 = time.perf_counter()
+    dets = [Detection((u0, v0, u1, v1), lab, sc) for u0, v0, u1, v1, lab, sc in
+            decode(heat, size, off, scale, det.cfg.stride, det.cfg.classes, SCORE, det.top_k)]
+    t3 = time.perf_counter()
+    return dets, [t1 - t0, t2 - t1, t3 - t2]
+
+
+def _classical_stages(det, rgb):
+    t1 = time.perf_counter()
+    mask = det.foreground(rgb)
+    t2 = time.perf_counter()
+    dets = det.boxes(rgb, mask)
+    t3 = time.perf_counter()
+    return dets, [0.0, t2 - t1, t3 - t2]
+
+
+def run_backend(name: str, threads: int, ds: Dataset, frames: list, operating: float = 0.3) -> dict:
+    cv2.setNumThreads(threads)
+    if name == "classical":
+        det, stages = make_detector("classical"), _classical_stages
+    else:
+        det, stages = make_detector(name, threads=threads, score_threshold=SCORE), _learned_stages
+    tracker = Tracker()
+    times = {k: [] for k in STAGES}
+    all_dets = []
+    for i, (s, rgb, bg) in enumerate(frames):
+        if name == "classical" and bg is not None:
+            det.set_background(bg)
+        if i == 0:
+            for _ in range(3):
+                stages(det, rgb)  # warm-up
+        dets, (pre, inf, post) = stages(det, rgb)
+        all_dets.append(dets)
+        cam = CameraModel.from_dict(s.camera)
+        t0 = time.perf_counter()
+        ground = []
+        for d in dets:
+            if d.score < operating:  # what a deployed RSU would pass on
+                continue
+            try:
+                gx, gy = box_to_ground(d.box, cam, d.label)
+            except GeoError:
+                continue
+            ground.append(GroundDetection(float(gx), float(gy), d.label, d.score))
+        t1 = time.perf_counter()
+        tracker.update(0.1 * i, ground)
+        t2 = time.perf_counter()
+        for k, v in zip(STAGES, (pre, inf, post, t1 - t0, t2 - t1)):
+            times[k].append(v * 1000)
+    rep = evaluate_detections(Dataset(ds.root, [s for s, _, _ in frames], ds.categories, ds.info), all_dets, name)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    det_ms = med["preprocess"] + med["inference"] + med["postprocess"]
+    total = det_ms + med["projection"] + med["tracking"]
+    return {"backend": name, "threads": threads, "frames": len(frames), "ms_median": med,
+            "detector_ms": det_ms, "total_ms": total, "detector_fps": 1000 / det_ms, "fps": 1000 / total,
+            "ratio_vs_paper_cpu": (1000 / total) / (1 / PAPER_CPU_S), "ap50": rep.ap50["overall"],
+            "ap": rep.ap["overall"]}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default="/work/data/heldout", help="dataset folder (640x480 frames)")
+    ap.add_argument("--frames", type=int, default=200)
+    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--backends", nargs="+", default=["torch", "onnx", "classical"])
+    ap.add_argument("--json", type=Path, default=RESULTS / "perception.json")
+    ap.add_argument("--quick", action="store_true", help="40 frames, 1 thread")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.frames, args.threads = min(args.frames, 40), [1]
+    import onnxruntime
+    import torch
+
+    ds = load_dataset(args.data)
+    frames = [(s, s.load(), s.background()) for s in ds.samples[:args.frames]]
+    info = machine_info(torch=torch.__version__, onnxruntime=onnxruntime.__version__, opencv=cv2.__version__,
+                        numpy=np.__version__)
+    rows = []
+    for threads in args.threads:
+        for b in args.backends:
+            r = run_backend(b, threads, ds, frames)
+            rows.append(r)
+            print(f"  {b:<9} threads {threads}: {r['fps']:.1f} FPS, AP50 {r['ap50']:.3f}", file=sys.stderr)
+    hdr = (f"{'configuration':<36} {'thr':>3} {'pre':>6} {'infer':>6} {'post':>6} {'proj':>6} {'track':>6} "
+           f"{'total':>7} {'FPS':>7} {'det FPS':>7} {'x paper':>8} {'AP50':>6} {'AP':>6}")
+    print(f"\nRSU perception on {args.data} ({len(frames)} frames 640x480, medians in ms; CPU: {info['cpu_count']} cores)")
+    print(hdr)
+    for r in rows:
+        m = r["ms_median"]
+        print(f"{r['backend']:<36} {r['threads']:>3} {m['preprocess']:>6.2f} {m['inference']:>6.2f} "
+              f"{m['postprocess']:>6.2f} {m['projection']:>6.2f} {m['tracking']:>6.2f} {r['total_ms']:>7.2f} "
+              f"{r['fps']:>7.1f} {r['detector_fps']:>7.1f} {r['ratio_vs_paper_cpu']:>8.0f} {r['ap50']:>6.3f} "
+              f"{r['ap']:>6.3f}")
+    for label, fps in PAPER:
+        print(f"{label:<36} {'':>3} {'':>6} {1000 / fps:>6.0f} {'':>6} {'':>6} {'':>6} {1000 / fps:>7.0f} "
+              f"{fps:>7.2f} {'':>7} {fps * PAPER_CPU_S:>8.1f} {'':>6} {'':>6}")
+    clean = lambda x: None if isinstance(x, float) and not math.isfinite(x) else x  # noqa: E731
+    write_report(args.json, {
+        "benchmark": "perception", "machine": info, "data": str(args.data), "frames": len(frames),
+        "stages": list(STAGES), "rows": [{k: clean(v) for k, v in r.items()} for r in rows],
+        "reference": [{"configuration": lab, "fps": fps, "ms": 1000 / fps, "ratio_vs_paper_cpu": fps * PAPER_CPU_S,
+                       "source": "ANCHORS I6/I7 (seed paper Table 2, section V-B)"} for lab, fps in PAPER]})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
