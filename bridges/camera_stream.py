@@ -9,11 +9,11 @@ detector gets the newest frame, never a growing queue.
 """
 from __future__ import annotations
 
-import json
-import struct
 from dataclasses import dataclass
 
 import numpy as np
+
+from bridges.headed_payload import pack, unpack
 
 ENCODINGS = ("raw", "jpeg")
 KEY = "camera/{}"
@@ -57,8 +57,7 @@ def encode_frame(frame, encoding: str = "raw", quality: int = 90) -> bytes:
               "width": int(rgb.shape[1]), "height": int(rgb.shape[0]), "encoding": encoding,
               "P": np.asarray(frame.P, float).tolist(), "K": np.asarray(frame.K, float).tolist(),
               "R_wc": np.asarray(frame.R_wc, float).tolist(), "position": np.asarray(frame.position, float).tolist()}
-    head = json.dumps(header, separators=(",", ":")).encode()
-    return struct.pack(">I", len(head)) + head + body
+    return pack(header, body)
 
 
 def _matrix(header: dict, key: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -75,17 +74,7 @@ def _matrix(header: dict, key: str, shape: tuple[int, ...]) -> np.ndarray:
 
 def decode_frame(payload: bytes) -> CameraFrame:
     """Inverse of encode_frame; raises CameraStreamError naming what is wrong."""
-    if len(payload) < 4:
-        raise CameraStreamError(f"truncated: {len(payload)} bytes, no header length")
-    (n,) = struct.unpack_from(">I", payload)
-    if 4 + n > len(payload):
-        raise CameraStreamError(f"truncated: header says {n} bytes, {len(payload) - 4} follow")
-    try:
-        header = json.loads(payload[4:4 + n].decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CameraStreamError(f"header: not JSON ({exc})") from None
-    if not isinstance(header, dict):
-        raise CameraStreamError("header: not a JSON object")
+    header, body = unpack(payload, CameraStreamError, "camera")
     missing = [k for k in _REQUIRED if k not in header]
     if missing:
         raise CameraStreamError(f"header: missing {', '.join(missing)}")
@@ -94,7 +83,6 @@ def decode_frame(payload: bytes) -> CameraFrame:
         raise CameraStreamError(f"header.width/height: expected integers in 1..{MAX_SIDE}, got {W!r} x {H!r}")
     if enc not in ENCODINGS:
         raise CameraStreamError(f"header.encoding: expected one of {', '.join(ENCODINGS)}, got {enc!r}")
-    body = payload[4 + n:]
     if enc == "raw":
         if len(body) != W * H * 3:
             raise CameraStreamError(f"raw image: expected {W * H * 3} bytes for {W}x{H} RGB, got {len(body)}")

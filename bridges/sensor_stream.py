@@ -9,10 +9,11 @@ uint16 label index per point.
 from __future__ import annotations
 
 import json
-import struct
 from dataclasses import dataclass
 
 import numpy as np
+
+from bridges.headed_payload import pack, unpack
 
 LIDAR_KEY, GNSS_KEY = "lidar/{}", "gnss/{}"
 _FIX_FIELDS = ("t", "x", "y", "z", "heading", "speed")
@@ -26,8 +27,9 @@ def encode_fix(fix) -> bytes:
     return json.dumps({k: float(getattr(fix, k)) for k in _FIX_FIELDS}, separators=(",", ":")).encode()
 
 
-@dataclass
+@dataclass(frozen=True)
 class GnssFix:
+    """A GNSS fix (what master.world.gnss produces and apps receive)."""
     t: float
     x: float
     y: float
@@ -73,25 +75,19 @@ def encode_scan(scan, labels: dict[int, tuple[str, str]]) -> bytes:
         index[int(body)] = len(names)
         names.append(f"{kind}:{name}")
     idx = np.array([index[int(b)] for b in scan.body_ids], dtype="<u2")
-    header = json.dumps({"t": float(scan.t), "pose": [float(v) for v in scan.pose], "rays": int(scan.n_rays),
-                         "points": int(len(scan.points)), "labels": names}, separators=(",", ":")).encode()
-    return struct.pack(">I", len(header)) + header + np.asarray(scan.points, "<f4").tobytes() + idx.tobytes()
+    header = {"t": float(scan.t), "pose": [float(v) for v in scan.pose], "rays": int(scan.n_rays),
+              "points": int(len(scan.points)), "labels": names}
+    return pack(header, np.asarray(scan.points, "<f4").tobytes() + idx.tobytes())
 
 
 def decode_scan(payload: bytes) -> LidarScan:
-    if len(payload) < 4:
-        raise SensorStreamError(f"lidar: truncated ({len(payload)} bytes)")
-    (n,) = struct.unpack_from(">I", payload)
-    if 4 + n > len(payload):
-        raise SensorStreamError(f"lidar: truncated: header says {n} bytes, {len(payload) - 4} follow")
+    h, body = unpack(payload, SensorStreamError, "lidar")
     try:
-        h = json.loads(payload[4:4 + n])
         count, names = int(h["points"]), list(h["labels"])
         pose = tuple(float(v) for v in h["pose"])
         t, rays = float(h["t"]), int(h["rays"])
-    except (UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError) as exc:
         raise SensorStreamError(f"lidar: bad header ({type(exc).__name__}: {exc})") from None
-    body = payload[4 + n:]
     if count < 0 or len(body) != count * 14:
         raise SensorStreamError(f"lidar: {count} points need {count * 14} bytes, got {len(body)}")
     pts = np.frombuffer(body[:count * 12], "<f4").reshape(count, 3)

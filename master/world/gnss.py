@@ -24,17 +24,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bridges.sensor_stream import GnssFix
 from master.world.layout import GnssSpec
 
 
-@dataclass(frozen=True)
-class Fix:
-    t: float
-    x: float
-    y: float
-    z: float
-    heading: float
-    speed: float
+Fix = GnssFix  # the fix an app receives over the bus is the one the world makes
 
 
 class Gnss:
