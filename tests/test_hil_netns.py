@@ -99,11 +99,15 @@ def _scenario(tmp_path, vehicle_fmu, mode: str, prefix: str, port: int) -> str:
         [participants.box]
         role = "box"
         timeout_s = 5.0
+        [participants.obu]
+        role = "av_app"
+        timeout_s = 5.0
     """))
     return str(path)
 
 
-def _exchange(netns_pair, tmp_path, vehicle_fmu, mode: str, *box_args: str) -> tuple[dict, dict]:
+def _exchange(netns_pair, tmp_path, vehicle_fmu, mode: str, *box_args: str) -> tuple[dict, dict, dict]:
+    """The master in one namespace; two participants ("box" with `box_args`, and "obu") in the other."""
     master_ns, box_ns, _ = netns_pair
     prefix, port = f"v2i/hil-{uuid.uuid4().hex[:8]}", 17447
     run_dir = tmp_path / f"run-{mode}"
@@ -111,36 +115,45 @@ def _exchange(netns_pair, tmp_path, vehicle_fmu, mode: str, *box_args: str) -> t
         ["ip", "netns", "exec", master_ns, sys.executable, "-m", "master.cli", "run",
          _scenario(tmp_path, vehicle_fmu, mode, prefix, port), "--out", str(run_dir), "--quiet"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    box = subprocess.Popen(
+    apps = {name: subprocess.Popen(
         ["ip", "netns", "exec", box_ns, sys.executable, "-m", "bridges.timesync.echo_participant",
-         "--bus", "zenoh", "--prefix", prefix, "--connect", f"tcp/{MASTER_IP}:{port}", "--name", "box",
-         "--role", "box", *box_args],
+         "--bus", "zenoh", "--prefix", prefix, "--connect", f"tcp/{MASTER_IP}:{port}", "--name", name,
+         "--role", role, *args],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for name, role, args in (("box", "box", box_args), ("obu", "av_app", ()))}
+    outs = {}
     try:
         master_out, _ = master.communicate(timeout=60)
-        box_out, box_err = box.communicate(timeout=20)
+        for name, proc in apps.items():
+            outs[name] = proc.communicate(timeout=20)
     finally:
-        for proc in (master, box):
+        for proc in (master, *apps.values()):
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
     assert master.returncode == 0, master_out
-    assert box.returncode == 0, box_err
+    for name, proc in apps.items():
+        assert proc.returncode == 0, outs[name][1]
     meta = json.loads((run_dir / "metadata.json").read_text())
-    return meta, json.loads(box_out.strip().splitlines()[-1])
+    box, obu = (json.loads(outs[n][0].strip().splitlines()[-1]) for n in ("box", "obu"))
+    return meta, box, obu
 
 
 def test_lockstep_across_the_link(netns_pair, tmp_path, vehicle_fmu):
-    meta, box = _exchange(netns_pair, tmp_path, vehicle_fmu, "lockstep")
-    member = meta["participants"]["members"]["box"]
-    assert meta["status"] == "completed" and member["acks"] == 50 and member["timeouts"] == 0
-    assert member["host"] and box["ticks"] == 50 and box["end"] == "completed"
+    meta, box, obu = _exchange(netns_pair, tmp_path, vehicle_fmu, "lockstep")
+    assert meta["status"] == "completed"
+    for name, app in (("box", box), ("obu", obu)):
+        member = meta["participants"]["members"][name]
+        assert member["acks"] == 50 and member["timeouts"] == 0, (name, member)
+        assert member["host"] and app["ticks"] == 50 and app["end"] == "completed"
 
 
 def test_realtime_offset_across_the_link(netns_pair, tmp_path, vehicle_fmu):
     """The box's clock runs 0.25 s ahead; across the link the estimate is within a few ms."""
-    meta, box = _exchange(netns_pair, tmp_path, vehicle_fmu, "realtime", "--clock-offset", "0.25")
+    meta, box, obu = _exchange(netns_pair, tmp_path, vehicle_fmu, "realtime", "--clock-offset", "0.25")
     offset = meta["participants"]["members"]["box"]["clock_offset"]
+    other = meta["participants"]["members"]["obu"]["clock_offset"]
+    assert other is not None and abs(other["offset_ns"]) < 3_000_000, other  # same clock as the master
     assert offset is not None, meta["participants"]
     assert abs(offset["offset_ns"] + 250_000_000) < 3_000_000, offset
     if netns_pair[2]:
