@@ -122,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
     pki_cli.add_parser(sub)
     snapshot.add_parser(sub)
     dataset_cli.add_parser(sub)
-    perception_cli.add_parser(sub)  # train-detector, eval-detector, export-detector
+    perception_cli.add_parser(sub)  # train-detector, eval-detector, eval-tracker, export-detector
     return p
 
 

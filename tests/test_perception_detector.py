@@ -42,11 +42,17 @@ def test_detection_checks(kw, match):
         Detection(**kw)
 
 
-def test_torch_needs_weights_unless_asked_for_random():
-    with pytest.raises(DetectorError, match="needs weights"):
-        make_detector("torch")
+def test_torch_defaults_to_shipped_weights_and_says_when_they_are_missing(monkeypatch, tmp_path):
+    from rsu_app.perception import detector as detmod
+
     with pytest.raises(DetectorError, match="not found"):
         make_detector("torch", weights="/nonexistent/w.pt")
+    monkeypatch.setitem(detmod.DEFAULT_WEIGHTS, "torch", tmp_path / "none.pt")
+    monkeypatch.setitem(detmod.DEFAULT_WEIGHTS, "onnx", tmp_path / "none.onnx")
+    with pytest.raises(DetectorError, match="no shipped weights"):
+        make_detector("torch")
+    with pytest.raises(DetectorError, match="no shipped weights"):
+        make_detector("onnx")
 
 
 def test_random_weights_find_nothing_in_a_blank_frame():

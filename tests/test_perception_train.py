@@ -107,6 +107,42 @@ def test_flip_and_scale_jitter_keep_boxes_on_the_vehicle(data):
     assert flips > 0
 
 
+def test_crop_targets_follow_the_window_and_crop_training_learns(data):
+    """A training crop's heat peaks sit where the vehicles' boxes land in the window; training on
+    crops lowers the loss; a crop that is not a multiple of 16 or exceeds the input is refused."""
+    from rsu_app.perception.train import sample_item
+
+    ds = load_dataset(data)
+    cfg = ModelConfig(width=8, input_size=(192, 144))
+    rng = np.random.default_rng(4)
+    peaks = 0
+    for i, s in enumerate(ds.samples):
+        state = rng.bit_generator.state
+        x, heat, weight, ind, size, offset, mask = sample_item(ds, i, cfg, rng, False, crop=(96, 64))
+        assert x.shape == (3, 64, 96) and heat.shape == (2, 16, 24)
+        rng.bit_generator.state = state
+        full = sample_item(ds, i, cfg, rng, False)  # same window draw: the full image, un-cropped
+        # the crop is a window of the full input: find it and compare pixels
+        X = full[0]
+        hits = [(y0, x0) for y0 in range(0, 144 - 64 + 1) for x0 in range(0, 192 - 96 + 1)
+                if np.array_equal(X[:, y0:y0 + 64, x0:x0 + 96], x)]
+        assert hits
+        y0, x0 = hits[0]
+        for k in np.flatnonzero(mask):
+            cy, cx = divmod(int(ind[k]), 24)
+            assert heat[:, cy, cx].max() == 1.0
+            fy, fx = cy + y0 // 4, cx + x0 // 4  # the same vehicle's peak in the full image's heat
+            assert full[1][:, max(0, fy - 1):fy + 2, max(0, fx - 1):fx + 2].max() > 0.5
+            peaks += 1
+    assert peaks >= 3
+    hist = train(data, None, epochs=20, seed=0, augment=False, lr=4e-3, crop=(96, 96), **TINY)["training"]["history"]
+    assert np.mean([h["loss"] for h in hist[-3:]]) < 0.5 * hist[0]["loss"], hist
+    with pytest.raises(ValueError, match="crop"):
+        train(data, None, epochs=1, crop=(100, 96), **TINY)
+    with pytest.raises(ValueError, match="crop"):
+        train(data, None, epochs=1, crop=(208, 96), **TINY)
+
+
 def test_bad_dataset_and_config(tmp_path, data):
     with pytest.raises(DatasetError, match="no annotations.json"):
         train(tmp_path, None, epochs=1, **TINY)

@@ -8,6 +8,8 @@
     evaluate.py      AP@0.5, AP@0.5:0.95, recall by distance and occlusion, FPS
     geo.py           box -> ground point -> WGS-84 (and back)
     tracker.py       Kalman multi-object tracker on the ground plane
+    sequence.py      the whole chain on the case-study camera sequence, scored on the simulator's truth
+    weights/         the shipped detector (detector.pt, detector.onnx; RECIPE.md: how it was made)
     dataset.py / synthetic.py   reading datasets / drawing a toy one for smoke tests
 
 Heavy modules (torch, onnxruntime) are imported only by the backends that need them.

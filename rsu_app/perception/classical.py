@@ -60,7 +60,10 @@ class ClassicalDetector:
         return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, self._kernel, iterations=2)
 
     def detect(self, rgb: np.ndarray) -> list[Detection]:
-        mask = self.foreground(rgb)
+        return self.boxes(rgb, self.foreground(rgb))
+
+    def boxes(self, rgb: np.ndarray, mask: np.ndarray) -> list[Detection]:
+        """Detections from a foreground mask of `rgb` (the second half of `detect`)."""
         n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         if n <= 1:
             return []

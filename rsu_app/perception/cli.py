@@ -1,4 +1,5 @@
-"""`v2i train-detector`, `v2i eval-detector` and `v2i export-detector` (added to the master's CLI).
+"""`v2i train-detector`, `v2i eval-detector`, `v2i eval-tracker` and `v2i export-detector` (added to the
+master's CLI).
 
 Exit codes as the rest of `v2i`: 0 success, 1 failure while running, 2 bad input.
 """
@@ -20,13 +21,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--batch-size", type=int, default=8)
     t.add_argument("--lr", type=float, default=2e-3)
     t.add_argument("--width", type=int, default=16, help="channels of the first stage (speed/accuracy)")
+    t.add_argument("--crop", help="train on random WxH windows (multiples of 16) of the 320x240 input, e.g. 192x144")
     t.add_argument("--onnx", help="also export the trained network to this .onnx file")
     t.set_defaults(func=_cmd_train)
 
     e = sub.add_parser("eval-detector", help="AP, recall by distance/occlusion and FPS of a detector on a dataset")
     e.add_argument("--data", required=True, help="dataset folder written by `v2i dataset`")
     e.add_argument("--detector", default="torch", help="backend: torch, onnx or classical (default torch)")
-    e.add_argument("--weights", help="weights (.pt for torch; .onnx or .pt for onnx)")
+    e.add_argument("--weights", help="weights (.pt for torch; .onnx or .pt for onnx); default the shipped ones")
     e.add_argument("--background", help="classical: empty-scene image (default DIR/background.png if present, "
                                          "else MOG2 over the frames)")
     e.add_argument("--threads", type=int, default=None)
@@ -34,6 +36,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="lowest score kept (low for AP; recall bins use it too)")
     e.add_argument("--json", action="store_true", help="print JSON instead of a table")
     e.set_defaults(func=_cmd_eval)
+
+    k = sub.add_parser("eval-tracker", help="detect, project and track the scenario's camera sequence; "
+                                           "position/speed/heading errors against the simulator's truth")
+    k.add_argument("--scenario", required=True, help="scenario file with a [world] camera (e.g. the IMA case study)")
+    k.add_argument("--detector", default="torch", help="backend: torch or onnx (default torch, shipped weights)")
+    k.add_argument("--weights", help="weights file (default the shipped ones)")
+    k.add_argument("--threads", type=int, default=None)
+    k.add_argument("--start", type=float, help="first frame time (default the scenario's start)")
+    k.add_argument("--stop", type=float, help="last frame time (default the scenario's stop)")
+    k.add_argument("--rate", type=float, help="frame rate in Hz (default the camera's)")
+    k.add_argument("--near", type=float, default=60.0, help="score vehicles within this range of the camera (m)")
+    k.add_argument("--min-age", type=float, default=1.0, help="score tracks older than this (s)")
+    k.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    k.set_defaults(func=_cmd_eval_tracker)
 
     x = sub.add_parser("export-detector", help="export trained detector weights to ONNX")
     x.add_argument("--weights", required=True)
@@ -48,10 +64,18 @@ def _cmd_train(args) -> int:
     if not Path(args.data).is_dir():
         print(f"error: --data {args.data}: not a folder", file=sys.stderr)
         return 2
+    crop = None
+    if args.crop:
+        try:
+            crop = tuple(int(v) for v in args.crop.lower().split("x"))
+            assert len(crop) == 2
+        except (ValueError, AssertionError):
+            print(f"error: --crop {args.crop}: expected WxH, e.g. 192x144", file=sys.stderr)
+            return 2
     command = "v2i " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("v2i") else None
     try:
         ckpt = train(args.data, args.out, epochs=args.epochs, seed=args.seed, threads=args.threads,
-                     batch_size=args.batch_size, lr=args.lr, width=args.width,
+                     batch_size=args.batch_size, lr=args.lr, width=args.width, crop=crop,
                      command=command or f"v2i train-detector --data {args.data} --out {args.out} "
                                         f"--epochs {args.epochs} --seed {args.seed} --threads {args.threads}")
     except (DatasetError, ValueError) as exc:
@@ -82,8 +106,6 @@ def _cmd_eval(args) -> int:
             elif args.background:
                 raise DetectorError(f"--background {args.background}: not found")
         else:
-            if not args.weights:
-                raise DetectorError(f"detector {args.detector!r} needs --weights")
             opts.update(weights=args.weights, score_threshold=args.score_threshold)
             if args.threads is not None:
                 opts["threads"] = args.threads
@@ -93,6 +115,25 @@ def _cmd_eval(args) -> int:
         return 2
     report = evaluate(det, ds)
     print(json.dumps(report.to_dict(), indent=2) if args.json else report.table())
+    return 0
+
+
+def _cmd_eval_tracker(args) -> int:
+    from master.scenario import ScenarioError
+    from rsu_app.perception.detector import DetectorError, make_detector
+    from rsu_app.perception.sequence import evaluate_sequence
+
+    try:
+        opts: dict = {"weights": args.weights}
+        if args.threads is not None:
+            opts["threads"] = args.threads
+        det = make_detector(args.detector, **opts)
+        rep = evaluate_sequence(args.scenario, det, start=args.start, stop=args.stop, rate_hz=args.rate,
+                                near_m=args.near, min_age=args.min_age)
+    except (DetectorError, ScenarioError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(rep.to_dict(), indent=2) if args.json else rep.table())
     return 0
 
 

@@ -1,6 +1,7 @@
 """One `Detector` interface, backends chosen by name.
 
     det = make_detector("torch", weights="weights.pt", threads=2)
+    det = make_detector("torch")   # the shipped weights (weights/detector.pt)
     for d in det.detect(frame.rgb): ...
 
 Like python-can's `Bus(interface=...)`: callers name a backend, the table
@@ -11,12 +12,26 @@ from __future__ import annotations
 
 import importlib
 import math
+from pathlib import Path
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 LABELS = ("car", "emergency")
+
+# the shipped weights (rsu_app/perception/weights/RECIPE.md says how they were made)
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+DEFAULT_WEIGHTS = {"torch": WEIGHTS_DIR / "detector.pt", "onnx": WEIGHTS_DIR / "detector.onnx"}
+
+
+def default_weights(backend: str) -> Path:
+    """The shipped weights file for `backend` ("torch" or "onnx"); DetectorError if it is missing."""
+    for path in (DEFAULT_WEIGHTS[backend], DEFAULT_WEIGHTS["torch"]):
+        if path.is_file():
+            return path
+    raise DetectorError(f"no shipped weights at {DEFAULT_WEIGHTS[backend]}: pass weights=PATH "
+                        f"(train one with `v2i train-detector`)")
 
 BACKENDS: dict[str, str] = {
     "classical": "rsu_app.perception.classical:ClassicalDetector",

@@ -175,17 +175,24 @@ def _fit(box: np.ndarray, camera: CameraModel, start: np.ndarray, yaw: float, di
     return r.x, float(np.sum(r.fun ** 2))
 
 
+def rough_ground_point(box, camera: CameraModel, label: str = "car", size: tuple[float, ...] | None = None) -> np.ndarray:
+    """Cheap first guess of the vehicle centre: the near ground point pushed back along the viewing ray by
+    a quarter of (length + width); the start of `box_to_ground`'s fit (good to a metre or two)."""
+    dims = size if size is not None else VEHICLE_SIZE.get(label, VEHICLE_SIZE["car"])
+    L, W = dims[0], dims[1]
+    near = near_ground_point(box, camera)
+    ray = near - camera.position[:2]
+    dist = float(np.hypot(*ray))
+    return near + (L + W) / 4 * ray / dist if dist > 1e-6 else near
+
+
 def box_to_ground(box, camera: CameraModel, label: str = "car", heading: float | None = None,
                   size: tuple[float, ...] | None = None) -> np.ndarray:
     """Estimated vehicle centre (x, y) on the ground from its box (see the module docstring).
 
     `size`: (length, width, height[, clearance]) in metres; default the class's typical size."""
     dims = size if size is not None else VEHICLE_SIZE.get(label, VEHICLE_SIZE["car"])
-    L, W = dims[0], dims[1]
-    near = near_ground_point(box, camera)
-    ray = near - camera.position[:2]
-    dist = float(np.hypot(*ray))
-    start = near + (L + W) / 4 * ray / dist if dist > 1e-6 else near
+    start = rough_ground_point(box, camera, label, size)
     b = np.array([float(v) for v in box])
     if heading is not None and math.isfinite(heading):
         return _fit(b, camera, start, heading, dims)[0]

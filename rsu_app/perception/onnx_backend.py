@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rsu_app.perception.detector import Detection, DetectorError, check_frame
+from rsu_app.perception.detector import Detection, DetectorError, check_frame, default_weights
 from rsu_app.perception.model import ModelConfig, decode, preprocess
 
 OUTPUTS = ("heat", "size", "offset")
@@ -51,11 +51,14 @@ def export_onnx(weights, path: str | Path | None = None, opset: int = 17) -> byt
 class OnnxDetector:
     name = "onnx"
 
-    def __init__(self, weights: str | Path | bytes, *, threads: int | None = None, score_threshold: float = 0.3,
+    def __init__(self, weights: str | Path | bytes | None = None, *, threads: int | None = None, score_threshold: float = 0.3,
                  top_k: int = 50, providers: list[str] | None = None):
-        """`weights`: an .onnx file (or its bytes), or a torch checkpoint (.pt), exported on the fly."""
+        """`weights`: an .onnx file (or its bytes), or a torch checkpoint (.pt), exported on the fly;
+        default the shipped weights/detector.onnx."""
         import onnxruntime as ort
 
+        if weights is None:
+            weights = default_weights("onnx")
         if isinstance(weights, (str, Path)):
             p = Path(weights)
             if not p.is_file():

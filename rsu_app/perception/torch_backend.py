@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rsu_app.perception.detector import Detection, DetectorError, check_frame
+from rsu_app.perception.detector import Detection, DetectorError, check_frame, default_weights
 from rsu_app.perception.model import FORMAT, CenterNet, ModelConfig, decode, preprocess
 
 
@@ -37,7 +37,7 @@ class TorchDetector:
                  score_threshold: float = 0.3, top_k: int = 50, random_weights: bool = False,
                  config: ModelConfig | None = None):
         if weights is None and not random_weights:
-            raise DetectorError("torch detector needs weights=PATH (or random_weights=True for timing only)")
+            weights = default_weights("torch")  # the shipped weights
         if weights is not None:
             self.net, self.checkpoint = load_weights(weights)
         else:

@@ -75,16 +75,18 @@ def _draw_gaussian(heat: np.ndarray, cx: float, cy: float, w: float, h: float) -
     heat[y0:y1, x0:x1] = np.maximum(heat[y0:y1, x0:x1], g)
 
 
-def make_targets(boxes: np.ndarray, labels: np.ndarray, ignore: np.ndarray, cfg: ModelConfig, max_objs: int = 64):
-    """Boxes (N, 4) in network-input pixels -> heat, heat weight, indices, size, offset, object mask."""
-    W, H = cfg.input_size
+def make_targets(boxes: np.ndarray, labels: np.ndarray, ignore: np.ndarray, cfg: ModelConfig, max_objs: int = 64,
+                 size: tuple[int, int] | None = None):
+    """Boxes (N, 4) in network-input pixels -> heat, heat weight, indices, size, offset, object mask.
+    `size` (W, H): the training image size when it is a crop smaller than cfg.input_size."""
+    W, H = size or cfg.input_size
     s = cfg.stride
     Wh, Hh = W // s, H // s
     C = len(cfg.classes)
     heat = np.zeros((C, Hh, Wh), np.float32)
     weight = np.ones((C, Hh, Wh), np.float32)
     ind = np.zeros(max_objs, np.int64)
-    size = np.zeros((max_objs, 2), np.float32)
+    wh = np.zeros((max_objs, 2), np.float32)
     offset = np.zeros((max_objs, 2), np.float32)
     mask = np.zeros(max_objs, np.float32)
     k = 0
@@ -99,20 +101,37 @@ def make_targets(boxes: np.ndarray, labels: np.ndarray, ignore: np.ndarray, cfg:
             continue
         _draw_gaussian(heat[c], cx, cy, w, h)
         ind[k] = int(cy) * Wh + int(cx)
-        size[k] = np.log(max(w, 0.25)), np.log(max(h, 0.25))
+        wh[k] = np.log(max(w, 0.25)), np.log(max(h, 0.25))
         offset[k] = cx - int(cx), cy - int(cy)
         mask[k] = 1.0
         k += 1
-    return heat, weight, ind, size, offset, mask
+    return heat, weight, ind, wh, offset, mask
+
+
+def _crop(rng: np.random.Generator, img: np.ndarray, M: np.ndarray, crop: tuple[int, int]):
+    """A random (W, H) window of the network-input image and M shifted to it (training patches are
+    cheaper than whole frames; the network is fully convolutional, so it runs on whole frames later)."""
+    W, H = crop
+    h, w = img.shape[:2]
+    if (W, H) == (w, h):
+        return img, M
+    x0, y0 = int(rng.integers(0, w - W + 1)), int(rng.integers(0, h - H + 1))
+    M = M.copy()
+    M[0, 2] -= x0
+    M[1, 2] -= y0
+    return np.ascontiguousarray(img[y0:y0 + H, x0:x0 + W]), M
 
 
 def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generator, augment: bool,
-                scale_jitter: float = 0.3, image: np.ndarray | None = None):
-    """One training pair: network input (3, H, W) float32 and its targets."""
+                scale_jitter: float = 0.3, image: np.ndarray | None = None, crop: tuple[int, int] | None = None):
+    """One training pair: network input (3, H, W) float32 and its targets. `crop` (W, H): train on a
+    random window of that size of the (augmented) network-input image instead of all of it."""
     s = ds.samples[idx]
     img = s.load() if image is None else image
     out, M = _geometry(rng, img, cfg, scale_jitter, augment)
-    W, H = cfg.input_size
+    if crop is not None:
+        out, M = _crop(rng, out, M, crop)
+    W, H = out.shape[1], out.shape[0]
     x = (_colour(rng, out) if augment else out.astype(np.float32)) / 255.0
     cls = {c: i for i, c in enumerate(cfg.classes)}
     boxes, labels, ignore = [], [], []
@@ -130,7 +149,7 @@ def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generato
         labels.append(cls[t.label])
         ignore.append(t.ignore or cut)
     tg = make_targets(np.array(boxes, np.float64).reshape(-1, 4), np.array(labels, np.int64),
-                      np.array(ignore, bool), cfg)
+                      np.array(ignore, bool), cfg, size=(W, H))
     return (np.ascontiguousarray(x.transpose(2, 0, 1)), *tg)
 
 
@@ -166,10 +185,16 @@ def loss_fn(outputs, targets) -> tuple[torch.Tensor, dict[str, float]]:
 
 def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, seed: int = 0, threads: int = 2,
           batch_size: int = 8, lr: float = 2e-3, width: int = 16, input_size: tuple[int, int] = (320, 240),
-          augment: bool = True, cache_images: bool = True, command: str | None = None, log=None) -> dict:
-    """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict."""
+          augment: bool = True, cache_images: bool = True, crop: tuple[int, int] | None = None,
+          command: str | None = None, log=None) -> dict:
+    """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict.
+    `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size."""
     if epochs < 1 or batch_size < 1 or threads < 1:
         raise ValueError(f"epochs, batch_size and threads must be >= 1, got {epochs}, {batch_size}, {threads}")
+    if crop is not None:
+        crop = (int(crop[0]), int(crop[1]))
+        if crop[0] % 16 or crop[1] % 16 or not (0 < crop[0] <= input_size[0] and 0 < crop[1] <= input_size[1]):
+            raise ValueError(f"crop must be positive multiples of 16 within input_size {input_size}, got {crop}")
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
     ds = load_dataset(data)
     if len(ds) == 0:
@@ -195,7 +220,8 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
         order = rng.permutation(len(ds))
         sums: dict[str, float] = {}
         for b in range(steps_per_epoch):
-            items = [sample_item(ds, int(i), cfg, rng, augment, image=None if images is None else images[int(i)])
+            items = [sample_item(ds, int(i), cfg, rng, augment, image=None if images is None else images[int(i)],
+                                 crop=crop)
                      for i in order[b * batch_size:(b + 1) * batch_size]]
             batch = [torch.from_numpy(np.stack(col)) for col in zip(*items)]
             loss, parts = loss_fn(net(batch[0]), batch[1:])
@@ -215,7 +241,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
         "training": {
             "command": command or " ".join(sys.argv),
             "seed": seed, "epochs": epochs, "threads": threads, "batch_size": batch_size, "lr": lr,
-            "augment": augment, "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
+            "augment": augment, "crop": list(crop) if crop else None, "width": width, "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
             "dataset_info": ds.info, "images": len(ds),
             "annotations": sum(len(s.truths) for s in ds.samples),
             "history": history, "seconds": round(time.perf_counter() - t_start, 2),
