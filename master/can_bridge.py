@@ -64,7 +64,6 @@ with its bytes in ``can-events.jsonl``; nothing from the bus stops a run.
 from __future__ import annotations
 
 import csv
-import json
 import math
 import sys
 import threading
@@ -80,6 +79,7 @@ import can
 from bridges.can.bus import BusConfig, open_bus
 from bridges.can.codec import (STATUS, CavCodec, CavCommand, CavHeartbeat, CavStatus, FrameError, Mode,
                                RollingCounter, RxChecker)
+from master.events import EventLog
 from master.errors import ScenarioError, SimulationError
 from master.fmu_variables import family
 
@@ -374,7 +374,7 @@ class CanBridge:
         except Exception as exc:  # python-can raises CanError, OSError, ImportError by interface
             raise SimulationError(cfg.vehicle, t, "can bridge open",
                                   f"cannot open {cfg.bus.describe()}: {type(exc).__name__}: {exc}") from exc
-        self._events = open(run_dir / EVENTS_JSONL, "w", buffering=1)
+        self._events = EventLog(run_dir, EVENTS_JSONL, "w")
         self._csv_file = open(run_dir / APPLIED_CSV, "w", newline="", buffering=1)
         self._csv = csv.writer(self._csv_file)
         self._csv.writerow(["t", "event", "mode", "accel_cmd", "steer_cmd", "reverse", "counter", "status_echo",
@@ -620,7 +620,7 @@ class CanBridge:
             self._fallback_since = None
         for f in (self._events, self._csv_file):
             if f is not None:
-                f.close()
+                f.close()  # EventLog.close and file.close: both idempotent
         self._events = self._csv_file = None
         return self._snapshot()
 
@@ -638,11 +638,8 @@ class CanBridge:
 
     def _log(self, event: dict[str, Any]) -> None:
         events = self._events
-        if events is not None:
-            try:
-                events.write(json.dumps(event) + "\n")
-            except ValueError:  # closed by close() while the receive thread logs
-                pass
+        if events is not None:  # EventLog ignores lines after close (the receive thread may still log)
+            events(event)
 
 
 __all__ = ["CanConfig", "CanBridge", "parse_can", "ON_TIMEOUT", "SYNC_MODES", "CAN_KEYS"]

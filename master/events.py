@@ -16,9 +16,11 @@ EVENTS = "events.jsonl"
 
 
 class EventLog:
-    def __init__(self, run_dir: Path | None):
+    """`EventLog(run_dir)` appends to run_dir/events.jsonl; `name` picks another file (a bridge's own log)."""
+
+    def __init__(self, run_dir: Path | None, name: str = EVENTS, mode: str = "a"):
         self._lock = threading.Lock()
-        self._file = open(Path(run_dir) / EVENTS, "a") if run_dir is not None else None
+        self._file = open(Path(run_dir) / name, mode) if run_dir is not None else None
         self.counts: Counter[str] = Counter()
 
     def __call__(self, event: dict[str, Any]) -> None:

@@ -46,7 +46,6 @@ arrived in wall-clock time, as they would from a box on a real serial line.
 """
 from __future__ import annotations
 
-import json
 import re
 import socket
 import sys
@@ -56,6 +55,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from master.events import EventLog
 from master.errors import SimulationError
 from master.fmu_variables import family
 
@@ -254,7 +254,7 @@ class SerialBridge:
         host = f"[{spec.host}]" if ":" in spec.host else spec.host
         self.url = f"socket://{host}:{self._server.getsockname()[1]}"
         self.stats["url"] = self.url
-        self._events = open(self._events_path, "w", buffering=1)
+        self._events = EventLog(self._events_path.parent, self._events_path.name, "w")
         self._log({"t": t, "event": "listen", "url": self.url, "sync": self.sync})
         self._thread = threading.Thread(target=self._serve, name=f"serial-{spec.name}", daemon=True)
         self._thread.start()
@@ -399,11 +399,8 @@ class SerialBridge:
 
     def _log(self, event: dict[str, Any]) -> None:
         events = self._events
-        if events is not None:
-            try:
-                events.write(json.dumps(event) + "\n")
-            except ValueError:  # closed by close() while the server thread logs
-                pass
+        if events is not None:  # EventLog ignores lines after close (the server thread may still log)
+            events(event)
 
 
 class SerialBridges:
