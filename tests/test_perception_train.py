@@ -178,3 +178,44 @@ def test_cli_train_eval_export(data, tmp_path, capsys):
     assert main(["eval-detector", "--data", str(data), "--detector", "yolo", "--weights", str(w)]) == 2
     assert "known: classical, onnx, torch" in capsys.readouterr().err
     assert main(["eval-detector", "--data", str(tmp_path / "none")]) == 2
+
+
+def test_cli_input_size_and_head_kind(data, tmp_path, capsys):
+    """--input and --heads reach the checkpoint's config and the detector built from it; a bad size or
+    head kind is refused naming the flag."""
+    from master.cli import main
+
+    w = tmp_path / "in.pt"
+    assert main(["train-detector", "--data", str(data), "--out", str(w), "--epochs", "1", "--threads", "1",
+                 "--width", "8", "--input", "256x192", "--heads", "conv", "--crop", "128x96"]) == 0
+    capsys.readouterr()
+    cfg = torch.load(w, weights_only=True)["config"]
+    assert cfg["input_size"] == [256, 192] and cfg["heads"] == "conv"
+    det = make_detector("torch", weights=w, threads=1)
+    assert det.cfg.input_size == (256, 192) and isinstance(det.net.heat[0][0], torch.nn.Conv2d)
+    assert det.net.heat[0][0].groups == 1  # a full 3x3 convolution, not a depthwise one
+    assert main(["train-detector", "--data", str(data), "--out", str(w), "--input", "256by192"]) == 2
+    assert "--input 256by192: expected WxH" in capsys.readouterr().err
+    assert main(["train-detector", "--data", str(data), "--out", str(w), "--input", "250x192"]) == 2
+    assert "multiples of 16" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="heads must be one of"):
+        ModelConfig(heads="wide")
+
+
+def test_checkpoint_without_head_kind_loads_as_full_convolutions(tmp_path):
+    """Checkpoints written before ModelConfig.heads existed (full 3x3 head convolutions) still load and
+    give the same outputs as the network that wrote them."""
+    from rsu_app.perception.model import FORMAT, CenterNet
+
+    torch.manual_seed(0)
+    net = CenterNet(ModelConfig(width=8, input_size=(192, 144), heads="conv")).eval()
+    config = net.cfg.to_dict()
+    del config["heads"]
+    path = tmp_path / "old.pt"
+    torch.save({"format": FORMAT, "config": config, "state_dict": net.state_dict()}, path)
+    det = make_detector("torch", weights=path, threads=1, score_threshold=0.0)
+    assert det.cfg.heads == "conv"
+    x = torch.rand(1, 3, 144, 192)
+    with torch.inference_mode():
+        for a, b in zip(net(x), det.net(x)):
+            assert torch.equal(a, b)

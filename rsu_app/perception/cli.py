@@ -21,7 +21,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--batch-size", type=int, default=8)
     t.add_argument("--lr", type=float, default=2e-3)
     t.add_argument("--width", type=int, default=16, help="channels of the first stage (speed/accuracy)")
-    t.add_argument("--crop", help="train on random WxH windows (multiples of 16) of the 320x240 input, e.g. 192x144")
+    t.add_argument("--input", default="320x240",
+                   help="network input WxH (multiples of 16) frames are resized to (default 320x240)")
+    t.add_argument("--heads", default="separable", choices=("separable", "conv"),
+                   help="output-head blocks: depthwise-separable (default) or full 3x3 convolutions")
+    t.add_argument("--crop", help="train on random WxH windows (multiples of 16) of the network input, e.g. 192x144")
     t.add_argument("--onnx", help="also export the trained network to this .onnx file")
     t.set_defaults(func=_cmd_train)
 
@@ -64,18 +68,17 @@ def _cmd_train(args) -> int:
     if not Path(args.data).is_dir():
         print(f"error: --data {args.data}: not a folder", file=sys.stderr)
         return 2
-    crop = None
-    if args.crop:
-        try:
-            crop = tuple(int(v) for v in args.crop.lower().split("x"))
-            assert len(crop) == 2
-        except (ValueError, AssertionError):
-            print(f"error: --crop {args.crop}: expected WxH, e.g. 192x144", file=sys.stderr)
-            return 2
+    try:
+        input_size = _size_arg("--input", args.input)
+        crop = _size_arg("--crop", args.crop) if args.crop else None
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     command = "v2i " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("v2i") else None
     try:
         ckpt = train(args.data, args.out, epochs=args.epochs, seed=args.seed, threads=args.threads,
                      batch_size=args.batch_size, lr=args.lr, width=args.width, crop=crop,
+                     input_size=input_size, heads=args.heads,
                      command=command or f"v2i train-detector --data {args.data} --out {args.out} "
                                         f"--epochs {args.epochs} --seed {args.seed} --threads {args.threads}")
     except (DatasetError, ValueError) as exc:
@@ -89,6 +92,15 @@ def _cmd_train(args) -> int:
     print(f"trained {tr['epochs']} epochs on {tr['images']} images in {tr['seconds']} s; "
           f"final loss {tr['history'][-1]['loss']:.4f}; wrote {args.out}")
     return 0
+
+
+def _size_arg(flag: str, text: str) -> tuple[int, int]:
+    """'WxH' -> (W, H), or ValueError naming the flag."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"{flag} {text}: expected WxH, e.g. 192x144") from None
+    return w, h
 
 
 def _cmd_eval(args) -> int:

@@ -164,10 +164,19 @@ def _fit(box: np.ndarray, camera: CameraModel, start: np.ndarray, yaw: float, di
     clipped = np.array([box[0] <= 1.0, box[1] <= 1.0, box[2] >= w_img - 1.0, box[3] >= h_img - 1.0])
     outward = np.array([-1.0, -1.0, 1.0, 1.0])  # the direction in which each edge leaves the image
 
+    # the heading is fixed within one fit: rotate the corners once, then only translate them,
+    # and project in camera axes directly (the residual runs a few dozen times per fit)
+    local_cam = _box_corners(0.0, 0.0, yaw, *dims) @ camera.R_wc
+    origin_cam = -camera.position @ camera.R_wc
+    ex, ey = camera.R_wc[0], camera.R_wc[1]  # world x and y axes in camera axes
+    K = camera.K
+
     def residual(p):
-        uv, depth = camera.project(_box_corners(p[0], p[1], yaw, *dims))
+        cam = local_cam + (origin_cam + p[0] * ex + p[1] * ey)
+        depth = cam[:, 2]
         if np.any(depth <= 0.05):
             return np.full(4, 1e3)
+        uv = (cam @ K[:2].T) / depth[:, None]
         r = (np.concatenate([uv.min(axis=0), uv.max(axis=0)]) - box) / scale
         return np.where(clipped, np.minimum(0.0, r * outward), r)
 

@@ -19,6 +19,7 @@ from torch import nn
 
 CLASSES = ("car", "emergency")
 FORMAT = "v2i-centernet/1"  # checkpoint format tag, bumped when the layout changes
+HEADS = ("separable", "conv")  # output-head block kinds (ModelConfig.heads)
 
 
 @dataclass
@@ -26,6 +27,7 @@ class ModelConfig:
     width: int = 16                      # channels of the first stage; later stages are multiples
     input_size: tuple[int, int] = (320, 240)  # (W, H) the frame is resized to
     classes: tuple[str, ...] = CLASSES
+    heads: str = "separable"             # head blocks: "separable" (depthwise 3x3 + 1x1) or "conv" (full 3x3)
     stride: int = field(default=4, init=False)  # output stride (fixed by the architecture)
 
     def __post_init__(self):
@@ -35,6 +37,8 @@ class ModelConfig:
                              f"got {W}x{H}")
         if self.width < 1 or not self.classes:
             raise ValueError(f"width must be >= 1 and classes non-empty, got {self.width}, {self.classes}")
+        if self.heads not in HEADS:
+            raise ValueError(f"heads must be one of {sorted(HEADS)}, got {self.heads!r}")
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -43,8 +47,9 @@ class ModelConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "ModelConfig":
+        # checkpoints written before `heads` existed used full 3x3 convolutions
         return cls(width=int(d["width"]), input_size=tuple(int(x) for x in d["input_size"]),
-                   classes=tuple(d["classes"]))
+                   classes=tuple(d["classes"]), heads=str(d.get("heads", "conv")))
 
 
 def _conv(cin: int, cout: int, k: int = 3, s: int = 1) -> nn.Sequential:
@@ -55,6 +60,14 @@ def _dw(cin: int, cout: int, s: int = 1) -> nn.Sequential:
     """Depthwise-separable block: cheap spatial mixing, then a pointwise channel mix."""
     return nn.Sequential(nn.Conv2d(cin, cin, 3, s, 1, groups=cin, bias=False), nn.BatchNorm2d(cin),
                          nn.ReLU(inplace=True), _conv(cin, cout, 1))
+
+
+def _head(c: int, n_out: int, kind: str) -> nn.Sequential:
+    """One output head at stride 4. The heads run on the most cells of the network, so at larger
+    input sizes the depthwise-separable form is what keeps the detector at camera rate."""
+    block = _dw(c, c) if kind == "separable" else _conv(c, c)
+    return nn.Sequential(block, nn.Conv2d(c, n_out, 1))
+
 
 
 class CenterNet(nn.Module):
@@ -74,9 +87,9 @@ class CenterNet(nn.Module):
         self.lat8 = _conv(4 * c, 2 * c, 1)
         self.fuse = _dw(2 * c, 2 * c)
         n = len(cfg.classes)
-        self.heat = nn.Sequential(_conv(2 * c, 2 * c), nn.Conv2d(2 * c, n, 1))
-        self.size = nn.Sequential(_conv(2 * c, 2 * c), nn.Conv2d(2 * c, 2, 1))
-        self.offset = nn.Sequential(_conv(2 * c, 2 * c), nn.Conv2d(2 * c, 2, 1))
+        self.heat = _head(2 * c, n, cfg.heads)
+        self.size = _head(2 * c, 2, cfg.heads)
+        self.offset = _head(2 * c, 2, cfg.heads)
         # focal-loss prior: start with ~1% foreground so early training is stable
         nn.init.constant_(self.heat[-1].bias, -4.6)
         self.register_buffer("mean", torch.tensor([0.45, 0.45, 0.45]).view(1, 3, 1, 1))

@@ -186,7 +186,7 @@ def loss_fn(outputs, targets) -> tuple[torch.Tensor, dict[str, float]]:
 def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, seed: int = 0, threads: int = 2,
           batch_size: int = 8, lr: float = 2e-3, width: int = 16, input_size: tuple[int, int] = (320, 240),
           augment: bool = True, cache_images: bool = True, crop: tuple[int, int] | None = None,
-          command: str | None = None, log=None) -> dict:
+          heads: str = "separable", command: str | None = None, log=None) -> dict:
     """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict.
     `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size."""
     if epochs < 1 or batch_size < 1 or threads < 1:
@@ -206,7 +206,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     torch.manual_seed(seed)
     torch.use_deterministic_algorithms(True)
     rng = np.random.default_rng(seed)
-    cfg = ModelConfig(width=width, input_size=tuple(input_size))
+    cfg = ModelConfig(width=width, input_size=tuple(input_size), heads=heads)
     net = CenterNet(cfg)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     steps_per_epoch = math.ceil(len(ds) / batch_size)
@@ -241,7 +241,8 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
         "training": {
             "command": command or " ".join(sys.argv),
             "seed": seed, "epochs": epochs, "threads": threads, "batch_size": batch_size, "lr": lr,
-            "augment": augment, "crop": list(crop) if crop else None, "width": width, "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
+            "augment": augment, "crop": list(crop) if crop else None, "width": width, "heads": heads,
+            "input_size": list(input_size), "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
             "dataset_info": ds.info, "images": len(ds),
             "annotations": sum(len(s.truths) for s in ds.samples),
             "history": history, "seconds": round(time.perf_counter() - t_start, 2),
