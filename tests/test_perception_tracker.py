@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from rsu_app.perception.tracker import GroundDetection, Tracker, TrackerConfig, TrackerError
+from rsu_app.perception.tracker import GroundDetection, Tracker, TrackerConfig, TrackerError, TrackState
 
 DT = 0.1
 
@@ -15,11 +15,12 @@ def _angle_err(a: float, b: float) -> float:
     return abs(math.remainder(a - b, math.tau))
 
 
-def test_speed_and_heading_after_one_second():
+@pytest.mark.parametrize("motion", ["cv", "ctrv"])
+def test_speed_and_heading_after_one_second(motion):
     rng = np.random.default_rng(1)
     speed, heading = 15.0, math.radians(30)
     v = speed * np.array([math.cos(heading), math.sin(heading)])
-    tr = Tracker()
+    tr = Tracker(motion=motion)
     for k in range(11):  # t = 0 .. 1.0 s
         p = np.array([-20.0, -10.0]) + v * k * DT + rng.normal(0, 0.3, 2)
         out = tr.update(k * DT, [GroundDetection(*p)])
@@ -29,15 +30,20 @@ def test_speed_and_heading_after_one_second():
     assert _angle_err(s.heading, heading) < math.radians(5), math.degrees(s.heading)
     truth = np.array([-20.0, -10.0]) + v * 1.0
     assert np.hypot(s.x - truth[0], s.y - truth[1]) < 0.6
+    if motion == "cv":
+        assert s.yaw_rate is None
+    else:  # 0.6 s after the switch from CV the yaw rate is known to ~0.05-0.1 rad/s (measured 0.08 here)
+        assert abs(s.yaw_rate) < 0.15, s.yaw_rate
 
 
-def test_ids_stable_through_a_crossing_with_misses():
+@pytest.mark.parametrize("motion", ["cv", "ctrv"])
+def test_ids_stable_through_a_crossing_with_misses(motion):
     """Two vehicles cross the same point at the same time at right angles; 15 % of detections are
     missed, positions have 0.3 m noise. Each vehicle keeps one id from confirmation to the end."""
     rng = np.random.default_rng(7)
     va, vb = np.array([12.0, 0.0]), np.array([0.0, 10.0])  # eastbound, northbound
     a0, b0 = -va * 2.5, -vb * 2.5  # both at (0, 0) at t = 2.5 s
-    tr = Tracker()
+    tr = Tracker(motion=motion)
     ids: dict[str, set[int]] = {"a": set(), "b": set()}
     for k in range(51):
         t = k * DT
@@ -120,3 +126,91 @@ def test_bad_input():
     with pytest.raises(TrackerError, match="confirm_hits"):
         TrackerConfig(confirm_hits=6, confirm_window=5)
     assert tr.update(3.0, [(1.0, 2.0)]) == []  # plain (x, y) tuples work; not confirmed yet
+
+
+# --- constant turn rate and velocity (CTRV) ---------------------------------------------------------
+TURN_SPEED, TURN_RATE = 8.0, 0.35  # m/s, rad/s: 80 degrees in 4 s, a tight urban turn (2.8 m/s^2 lateral)
+TURN_YAW0 = 2.6  # rad: the heading crosses +-pi 1.5 s in, so the filter's yaw wrapping is exercised
+
+
+def _turn_truth(t: float) -> tuple[np.ndarray, float]:
+    """Starts at the origin heading TURN_YAW0 and turns left."""
+    yaw = TURN_YAW0 + TURN_RATE * t
+    r = TURN_SPEED / TURN_RATE
+    return r * np.array([math.sin(yaw) - math.sin(TURN_YAW0), math.cos(TURN_YAW0) - math.cos(yaw)]), yaw
+
+
+def _turn_detections(seed: int) -> list[tuple[float, np.ndarray]]:
+    rng = np.random.default_rng(seed)
+    return [(k * DT, _turn_truth(k * DT)[0] + rng.normal(0, 0.3, 2)) for k in range(41)]
+
+
+def _track_turn(motion: str, dets) -> tuple[float, float, TrackState]:
+    """Median heading error (deg) and position error (m) after the first second, and the last state."""
+    tr = Tracker(motion=motion)
+    head, pos = [], []
+    for t, z in dets:
+        (s,) = tr.update(t, [GroundDetection(*z)]) or (None,)
+        if t > 1.0 + 1e-9:
+            p, yaw = _turn_truth(t)
+            head.append(math.degrees(_angle_err(s.heading, yaw)))
+            pos.append(math.hypot(s.x - p[0], s.y - p[1]))
+    return float(np.median(head)), float(np.median(pos)), s
+
+
+def test_ctrv_follows_a_turn_better_than_cv():
+    """CV lags a turn (measured here: 12.8 deg median heading error, 0.42 m position error); CTRV models
+    it (1.4 deg, 0.23 m). Over 40 seeds CTRV's median heading error was 0.9-4.3 deg (median 1.8) against
+    CV's 11.9-13.7, so 5 deg separates them with margin; its final yaw-rate error was < 0.06 rad/s."""
+    dets = _turn_detections(seed=5)
+    cv_head, cv_pos, _ = _track_turn("cv", dets)
+    ct_head, ct_pos, s = _track_turn("ctrv", dets)
+    assert ct_head < cv_head and ct_pos < cv_pos, (ct_head, cv_head, ct_pos, cv_pos)
+    assert ct_head < 5.0, ct_head
+    assert abs(s.yaw_rate - TURN_RATE) < 0.1, s.yaw_rate
+
+
+def test_ctrv_predicts_across_a_gap_without_changing_state():
+    """The camera drops out for 0.8 s mid-turn: CTRV's extrapolation follows the arc (measured 0.44 m
+    off vs CV's 2.8 m here; over 40 seeds median 0.54 vs 2.99 m), and predicting changes nothing a later
+    update would see."""
+    dets = _turn_detections(seed=5)
+    before = [(t, z) for t, z in dets if t <= 2.0 + 1e-9]
+    after = [(t, z) for t, z in dets if t >= 2.8 - 1e-9]
+    truth, _ = _turn_truth(after[0][0])
+    err = {}
+    for motion in ("cv", "ctrv"):
+        tr = Tracker(motion=motion)
+        for t, z in before:
+            tr.update(t, [GroundDetection(*z)])
+        (s,) = tr.predict(after[0][0])
+        err[motion] = math.hypot(s.x - truth[0], s.y - truth[1])
+    assert err["ctrv"] < err["cv"], err
+    assert err["ctrv"] < 1.0, err
+    # without noise the extrapolation must follow the arc, not its tangent: 0.8 s at 8 m/s and 0.35 rad/s
+    # bends v w T^2 / 2 ~ 0.9 m off the tangent (measured: 0.18 m off with the arc, 0.65 m with the chord)
+    tr = Tracker(motion="ctrv")
+    for t, _ in before:
+        tr.update(t, [GroundDetection(*_turn_truth(t)[0])])
+    (s,) = tr.predict(after[0][0])
+    assert math.hypot(s.x - truth[0], s.y - truth[1]) < 0.3
+
+    probed, plain = Tracker(motion="ctrv"), Tracker(motion="ctrv")
+    for t, z in before:
+        probed.update(t, [GroundDetection(*z)])
+        plain.update(t, [GroundDetection(*z)])
+    (a,), (b,) = probed.predict(2.8), probed.predict(2.8)
+    assert a.yaw_rate is not None and a == b and np.array_equal(a.cov, b.cov)
+    probed.predict(2.5)
+    for t, z in after:
+        (p,), (q,) = probed.update(t, [GroundDetection(*z)]), plain.update(t, [GroundDetection(*z)])
+        assert p == q and np.array_equal(p.cov, q.cov)
+
+
+@pytest.mark.parametrize("key, value", [("motion", "ctra"), ("turn_accel_std", 0.0)])
+def test_bad_motion_config(key, value):
+    with pytest.raises(TrackerError, match=key) as e:
+        TrackerConfig(**{key: value})
+    assert str(value) in str(e.value)
+    if key == "motion":
+        assert "'cv'" in str(e.value) and "'ctrv'" in str(e.value)

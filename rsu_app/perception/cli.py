@@ -52,6 +52,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     k.add_argument("--rate", type=float, help="frame rate in Hz (default the camera's)")
     k.add_argument("--near", type=float, default=60.0, help="score vehicles within this range of the camera (m)")
     k.add_argument("--min-age", type=float, default=1.0, help="score tracks older than this (s)")
+    k.add_argument("--motion", default="cv", choices=("cv", "ctrv"),
+                   help="tracker motion model: constant velocity (default) or constant turn rate and velocity")
     k.add_argument("--json", action="store_true", help="print JSON instead of a table")
     k.set_defaults(func=_cmd_eval_tracker)
 
@@ -134,6 +136,7 @@ def _cmd_eval_tracker(args) -> int:
     from master.scenario import ScenarioError
     from rsu_app.perception.detector import DetectorError, make_detector
     from rsu_app.perception.sequence import evaluate_sequence
+    from rsu_app.perception.tracker import Tracker
 
     try:
         opts: dict = {"weights": args.weights}
@@ -141,7 +144,7 @@ def _cmd_eval_tracker(args) -> int:
             opts["threads"] = args.threads
         det = make_detector(args.detector, **opts)
         rep = evaluate_sequence(args.scenario, det, start=args.start, stop=args.stop, rate_hz=args.rate,
-                                near_m=args.near, min_age=args.min_age)
+                                near_m=args.near, min_age=args.min_age, tracker=Tracker(motion=args.motion))
     except (DetectorError, ScenarioError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
