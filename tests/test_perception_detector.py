@@ -109,3 +109,32 @@ def test_classical_background_shape_mismatch(rendered):
         det.detect(np.zeros((240, 320, 3), np.uint8))
     with pytest.raises(DetectorError, match="cannot read background"):
         make_detector("classical", background="/nonexistent.png")
+
+
+def _heat_with_peaks(peaks, shape=(2, 30, 40)):
+    """Network outputs with isolated unit peaks: (class, row, col, score, log w, log h) each."""
+    heat = np.zeros((1, *shape), np.float32)
+    size = np.zeros((1, 2, *shape[1:]), np.float32)
+    off = np.zeros((1, 2, *shape[1:]), np.float32)
+    for c, y, x, score, lw, lh in peaks:
+        heat[0, c, y, x] = score
+        size[0, :, y, x] = lw, lh
+    return heat, size, off
+
+
+def test_decode_box_nms_drops_a_second_peak_on_the_same_vehicle():
+    """Two peaks 3 cells apart with the same large box (a long vehicle), and a car and an emergency peak
+    on one vehicle, each give one box, the higher-scored; a separate vehicle keeps its box; with
+    nms_iou=None all four peaks come out."""
+    from rsu_app.perception.model import decode
+
+    big, small = np.log(12.0), np.log(4.0)
+    heat, size, off = _heat_with_peaks([(0, 10, 10, 0.9, big, big), (0, 10, 13, 0.6, big, big),
+                                        (1, 20, 30, 0.7, small, small), (0, 20, 30, 0.5, small, small)])
+    out = decode(heat, size, off, (2.0, 2.0), 4, ("car", "emergency"), score_threshold=0.3)
+    assert [(lab, round(s, 2)) for *_, lab, s in out] == [("car", 0.9), ("emergency", 0.7)]
+    raw = decode(heat, size, off, (2.0, 2.0), 4, ("car", "emergency"), score_threshold=0.3, nms_iou=None)
+    assert len(raw) == 4
+    # boxes that only touch are different vehicles
+    heat, size, off = _heat_with_peaks([(0, 10, 10, 0.9, small, small), (0, 10, 14, 0.8, small, small)])
+    assert len(decode(heat, size, off, (1.0, 1.0), 4, ("car", "emergency"))) == 2

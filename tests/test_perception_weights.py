@@ -3,9 +3,11 @@
 A small held-out-variant set is rendered fresh here with a seed no other
 dataset uses (colours, sizes, camera heights and fields of view the training
 set never contains), so a pass says the shipped network generalises, not
-that it remembers. The AP bar (0.72) sits a little below what the full 400-frame
-held-out set measured (0.83, RECIPE.md); a network that detects nothing or
-mislabels the emergency vehicle fails it.
+that it remembers. These 16 frames gave AP50 0.985 and AP50:95 0.61 with
+the shipped network (the 400-frame held-out set: 0.917 and 0.52, RECIPE.md).
+The bars (0.90 and 0.52) leave room for rendering differences; AP50 alone is
+too coarse on 51 vehicles to tell a good network from a poor one (the
+previous, 320x240 network scores 0.937 here), AP50:95 does (it had 0.44).
 """
 from __future__ import annotations
 
@@ -24,7 +26,8 @@ from rsu_app.perception.evaluate import evaluate  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 SEED = 770077  # used by no other dataset of the project
-AP50_MIN = 0.72
+AP50_MIN = 0.90
+AP_MIN = 0.52  # AP@0.5:0.95
 torch.set_num_threads(1)
 
 
@@ -54,7 +57,7 @@ def test_default_detector_finds_the_fresh_heldout_vehicles(fresh):
     assert det.checkpoint is not None and det.checkpoint["training"]["images"] >= 1000
     rep = evaluate(det, fresh, warmup=1)
     assert sum(rep.truths.values()) >= 30, rep.truths  # enough vehicles for the figure to mean something
-    assert rep.ap50["overall"] >= AP50_MIN, rep.table()
+    assert rep.ap50["overall"] >= AP50_MIN and rep.ap["overall"] >= AP_MIN, rep.table()
     assert rep.ap50["car"] >= AP50_MIN - 0.05 and rep.ap50["emergency"] >= AP50_MIN - 0.15, rep.table()
     print(rep.table())
 

@@ -20,6 +20,7 @@ from torch import nn
 CLASSES = ("car", "emergency")
 FORMAT = "v2i-centernet/1"  # checkpoint format tag, bumped when the layout changes
 HEADS = ("separable", "conv")  # output-head block kinds (ModelConfig.heads)
+NMS_IOU = 0.5  # decode's class-agnostic box NMS: boxes overlapping a better one by more are the same vehicle
 
 
 @dataclass
@@ -115,11 +116,29 @@ def preprocess(rgb: np.ndarray, cfg: ModelConfig) -> tuple[np.ndarray, tuple[flo
     return x, (w0 / W, h0 / H)
 
 
+def box_nms(boxes: np.ndarray, iou: float) -> np.ndarray:
+    """Indices of `boxes` (N, 4; sorted by falling score) kept by greedy non-maximum suppression."""
+    keep: list[int] = []
+    area = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+    for i in range(len(boxes)):
+        if keep:
+            k = np.array(keep)
+            iw = np.clip(np.minimum(boxes[k, 2], boxes[i, 2]) - np.maximum(boxes[k, 0], boxes[i, 0]), 0, None)
+            ih = np.clip(np.minimum(boxes[k, 3], boxes[i, 3]) - np.maximum(boxes[k, 1], boxes[i, 1]), 0, None)
+            inter = iw * ih
+            if np.any(inter > iou * (area[k] + area[i] - inter)):
+                continue
+        keep.append(i)
+    return np.array(keep, int)
+
+
 def decode(heat: np.ndarray, size: np.ndarray, offset: np.ndarray, scale: tuple[float, float], stride: int,
-           classes: tuple[str, ...], score_threshold: float = 0.3, top_k: int = 50):
+           classes: tuple[str, ...], score_threshold: float = 0.3, top_k: int = 50, nms_iou: float | None = NMS_IOU):
     """Network outputs of one image -> list of (u0, v0, u1, v1, label, score) in frame pixels.
 
-    Peaks are cells that equal the max of their 3x3 neighbourhood (the CenterNet NMS)."""
+    Peaks are cells that equal the max of their 3x3 neighbourhood of the same class (the CenterNet
+    NMS). That leaves a second peak on a long vehicle, or one per class on the same vehicle, so
+    the boxes then go through class-agnostic box NMS at `nms_iou` (None: off)."""
     heat = heat[0]
     peaks = np.empty_like(heat)
     kernel = np.ones((3, 3), np.uint8)
@@ -138,5 +157,6 @@ def decode(heat: np.ndarray, size: np.ndarray, offset: np.ndarray, scale: tuple[
     bw, bh = np.exp(np.clip(size[0, 0, ys, xs], -4, 6)), np.exp(np.clip(size[0, 1, ys, xs], -4, 6))
     cx, cy = (xs + ox) * stride * scale[0], (ys + oy) * stride * scale[1]
     bw, bh = bw * stride * scale[0], bh * stride * scale[1]
-    return [(float(cx[i] - bw[i] / 2), float(cy[i] - bh[i] / 2), float(cx[i] + bw[i] / 2), float(cy[i] + bh[i] / 2),
-             classes[int(cls[i])], float(scores[i])) for i in range(len(cand))]
+    boxes = np.column_stack([cx - bw / 2, cy - bh / 2, cx + bw / 2, cy + bh / 2])
+    keep = box_nms(boxes, nms_iou) if nms_iou is not None else range(len(cand))
+    return [(*(float(b) for b in boxes[i]), classes[int(cls[i])], float(scores[i])) for i in keep]
