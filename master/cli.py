@@ -10,7 +10,6 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from master.errors import ScenarioError
 
 
 def _cmd_build_fmus(args) -> int:
@@ -27,14 +26,12 @@ def _cmd_build_fmus(args) -> int:
 
 
 def _cmd_validate(args) -> int:
-    from master.scenario import load_scenario
+    from master.scenario import load_scenario_or_report
 
     worst = 0
     for path in args.files:
-        try:
-            sc = load_scenario(path)
-        except ScenarioError as exc:
-            print(exc, file=sys.stderr)
+        sc = load_scenario_or_report(path)
+        if sc is None:
             worst = 2
             continue
         print(f"{path}: ok ({len(sc.instances)} instances, {len(sc.connections)} connections, "
@@ -44,13 +41,11 @@ def _cmd_validate(args) -> int:
 
 def _cmd_run(args) -> int:
     from master.cosim import CoSimulation
-    from master.scenario import load_scenario
+    from master.scenario import load_scenario_or_report
     from master.summary import format_summary
 
-    try:
-        sc = load_scenario(args.file)
-    except ScenarioError as exc:
-        print(exc, file=sys.stderr)
+    sc = load_scenario_or_report(args.file)
+    if sc is None:
         return 2
     overrides = {k: v for k, v in (("mode", args.mode), ("ordering", args.ordering),
                                    ("rtf", args.rtf), ("overrun", args.overrun)) if v is not None}

@@ -137,6 +137,18 @@ def resolve_fmu(spec: str, base_dir: Path) -> Path:
     raise FileNotFoundError(f"no FMU named {spec!r}: not a file, not a project FMU (project FMUs: {known})")
 
 
+def load_scenario_or_report(path: str | os.PathLike) -> Scenario | None:
+    """For the CLI commands: the scenario, or None after printing why it could not be loaded
+    (the caller exits 2)."""
+    import sys
+
+    try:
+        return load_scenario(path)
+    except ScenarioError as exc:
+        print(exc, file=sys.stderr)
+        return None
+
+
 def load_scenario(path: str | os.PathLike) -> Scenario:
     """Parse and validate a scenario file; raises ScenarioError listing every problem."""
     path = Path(path)

@@ -6,14 +6,11 @@ from pathlib import Path
 
 
 def _cmd_dataset(args) -> int:
-    from master.errors import ScenarioError
-    from master.scenario import load_scenario
+    from master.scenario import load_scenario_or_report
     from master.world.dataset import DatasetError, make_dataset
 
-    try:
-        sc = load_scenario(args.scenario)
-    except ScenarioError as exc:
-        print(exc, file=sys.stderr)
+    sc = load_scenario_or_report(args.scenario)
+    if sc is None:
         return 2
     if sc.world is None:
         print(f"error: {args.scenario}: no [world] table to render a dataset from", file=sys.stderr)

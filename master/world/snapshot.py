@@ -317,13 +317,10 @@ def snapshot(scenario, t: float, out: Path, cameras: list[str] | None = None,
 
 # -- command line ----------------------------------------------------------------------------
 def _cmd(args) -> int:
-    from master.errors import ScenarioError
-    from master.scenario import load_scenario
+    from master.scenario import load_scenario_or_report
 
-    try:
-        sc = load_scenario(args.file)
-    except ScenarioError as exc:
-        print(exc, file=sys.stderr)
+    sc = load_scenario_or_report(args.file)
+    if sc is None:
         return 2
     t = sc.time.stop if args.t is None else args.t
     out = Path(args.out) if args.out else Path("runs") / f"{sc.name}-snapshot-t{t:g}"
