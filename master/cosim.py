@@ -109,7 +109,8 @@ class CoSimulation:
         self.events = None  # master.events.EventLog of the bridges
         # apps over a bus following the master's clock ([bridge], [participants.NAME])
         self.participants = ParticipantBridge(scenario.participants, scenario.time.mode, scenario.time.rtf,
-                                              scenario.name, quiet)
+                                              scenario.name, quiet,
+                                              world=scenario.world.describe() if scenario.world else None)
 
     # -- set-up -------------------------------------------------------------
     def _instantiate(self, members: dict[str, _Member]) -> None:

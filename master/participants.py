@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from bridges.geo import GeoOrigin
 from bridges.timesync.clock import TimeMapping
 from bridges.timesync.coordinator import LATENCY_POLICIES, Coordinator, Expected
 from bridges.timesync.errors import TimeSyncError
@@ -287,8 +288,12 @@ def _parse_participant(name: str, table: Any, problem) -> ParticipantSpec | None
 class ParticipantBridge:
     """Time protocol of one run; inert (and free) when the scenario has no participants."""
 
-    def __init__(self, spec: ParticipantsSpec | None, mode: str, rtf: float, run_name: str, quiet: bool = True):
+    def __init__(self, spec: ParticipantsSpec | None, mode: str, rtf: float, run_name: str, quiet: bool = True,
+                 world: dict[str, Any] | None = None):
+        """`world`: what the join reply tells every app of the scenario's world (WorldLayout.describe();
+        without a [world] table, the default geodetic origin)."""
         self.spec, self.mode, self.rtf, self.quiet = spec, mode, rtf, quiet
+        self.world = dict(world) if world is not None else {"origin": GeoOrigin().to_dict()}
         self.prefix = None
         if spec is not None:
             safe = re.sub(r"[^A-Za-z0-9_.\-]", "_", run_name) or "run"
@@ -321,7 +326,8 @@ class ParticipantBridge:
         self.coordinator = Coordinator(
             self.bus, [p.expected() for p in self.spec.participants.values()], mode=self.mode,
             latency_policy=b.latency, heartbeat_s=b.heartbeat_s, heartbeat_timeout_s=b.heartbeat_timeout_s,
-            master_timeout_s=max(10.0, 4 * b.heartbeat_timeout_s), on_refused=b.on_refused, poll=self._poll)
+            master_timeout_s=max(10.0, 4 * b.heartbeat_timeout_s), on_refused=b.on_refused, poll=self._poll,
+            world=self.world)
         self.coordinator.start()
         for p in self.spec.participants.values():
             if p.command:

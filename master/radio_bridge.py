@@ -32,10 +32,11 @@ import threading
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Callable
 
+from bridges.v2x import AIR_ARRIVAL, TX_KEY, rx_key, stamp_ns
+
 MODES = ("channel", "bypass")
 _KEYS = ("mode", "max_range_m", "channel", "stations")
 _STATION_KEYS = ("position", "vehicle")
-TX_KEY, RX_KEY = "v2x/tx/{}", "v2x/rx/{}"
 
 
 @dataclass
@@ -300,7 +301,8 @@ class RadioBridge:
             station = msg.key.rsplit("/", 1)[-1]
             air.transmit(station, msg.seq, max(msg.t_sim, self._t_done), msg.payload, msg.stamps)
         for d in air.due(t_next):
-            self.bus.publish(RX_KEY.format(d.receiver), d.payload, d.arrival, stamps=d.stamps)
+            self.bus.publish(rx_key(d.receiver), d.payload, d.arrival,
+                             stamps={**d.stamps, AIR_ARRIVAL: stamp_ns(d.arrival)})
         self._t_done = t_next
 
     def close(self) -> dict[str, Any]:

@@ -18,6 +18,7 @@ from bridges.camera_stream import CameraSubscriber
 from bridges.sensor_stream import decode_fix
 from bridges.timesync.participant import Participant
 from bridges.transport.memory import MemoryBus
+from bridges.v2x import AIR_ARRIVAL, stamp_ns
 from master.cosim import CoSimulation
 from master.scenario import load_scenario
 
@@ -99,7 +100,7 @@ def _cav(prefix, out):
             p.join(5)
             for tick in p.ticks():
                 while (msg := rx.recv(timeout=0.0)) is not None:
-                    out["rx"].append((tick.t, msg.t_sim, msg.sender, msg.payload[:9]))
+                    out["rx"].append((tick.t, msg.t_sim, msg.sender, msg.payload[:9], dict(msg.stamps)))
                 while (msg := fixes.recv(timeout=0.0)) is not None:
                     out["fixes"].append(decode_fix(msg.payload))
                 p.ack(tick)
@@ -127,8 +128,9 @@ def test_camera_to_rsu_app_and_v2x_through_the_air_to_the_cav(tmp_path, fmu_dir)
     assert all(shape == (480, 640, 3) and psum > 0 for *_, shape, psum in frames)
     # V2X: each frame transmitted 30 ms after its tick, received through the channel after that
     assert len(out["rx"]) >= len(frames) - 1
-    for tick_t, arrival, sender, head in out["rx"]:
+    for tick_t, arrival, sender, head, stamps in out["rx"]:
         assert sender == "master" and head.startswith(b"frame ")
+        assert stamps[AIR_ARRIVAL] == stamp_ns(arrival)  # the air stamps the arrival for the latency chain
         fid = int(head.split()[1].rstrip(b"."))
         t_tx = frames[fid][1] + 0.03
         assert t_tx < arrival < t_tx + 0.01 and arrival <= tick_t + 1e-9

@@ -240,7 +240,7 @@ def test_version_mismatch_is_refused_naming_both_versions(write_scenario, tmp_pa
     path = scenario(write_scenario, bus_tables("zenoh") + echo("future", "--version", "2.0"))
     result = CoSimulation(load_scenario(path), tmp_path / "run", quiet=True).run()
     assert result.status == "failed"
-    assert "protocol version 2.0 of participant 'future' is incompatible with the master's protocol version 1.0" \
+    assert "protocol version 2.0 of participant 'future' is incompatible with the master's protocol version 1.1" \
         in result.error
     meta = result.metadata["participants"]
     assert meta["refused"][0]["version"] == "2.0" and meta["members"]["future"]["process"]["returncode"] == 3

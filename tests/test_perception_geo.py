@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from rsu_app.perception.geo import CameraModel, GeoError, GeoOrigin, box_to_ground, near_ground_point
+from bridges.geo import GeoOrigin
+from rsu_app.perception.geo import CameraModel, GeoError, box_to_ground, near_ground_point
 
 pytest.importorskip("pybullet")
 

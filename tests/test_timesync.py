@@ -77,13 +77,14 @@ def coordinator(bus, *expected, **options):
 def test_messages_round_trip_bit_for_bit():
     t = 0.1 + 0.2  # not representable in short decimal: must survive exactly
     for msg in (m.Tick(7, t, 0.01), m.Ack("rsu1", "s", 7, 0.0123), m.Join("av", "av_app", "s", ["v2x/rx/av"]),
-                m.Welcome("av", "s", True, latencies={"detect": 0.05}), m.Mapping(t, 123, 2.0),
+                m.Welcome("av", "s", True, latencies={"detect": 0.05},
+                          world={"origin": {"lat": 42.0, "lon": -83.0, "alt": 260.0}}), m.Mapping(t, 123, 2.0),
                 m.Pong("a", 1, 2, 3, 4), m.End("failed", "x"), m.Offset("a", "s", -250_000_000, 300_000, 8)):
         back = m.decode(m.encode(msg))
         assert back == msg and type(back) is type(msg)
     assert m.decode(m.encode(m.Tick(1, t))).t == t
     body = json.loads(m.encode(m.Tick(1, 0.5)))
-    assert body["type"] == "tick" and body["v"] == [1, 0]
+    assert body["type"] == "tick" and body["v"] == list(m.PROTOCOL_VERSION) == [1, 1]
 
 
 @pytest.mark.parametrize("payload, words", [
@@ -94,7 +95,7 @@ def test_messages_round_trip_bit_for_bit():
     (b'{"type": "tick", "v": [1, 0], "k": "3", "t": 1.0}', "field 'k' must be int"),
     (b'{"type": "tick", "v": [1, 0], "k": true, "t": 1.0}', "field 'k' must be int"),
     (b'{"type": "tick", "v": "1.0", "k": 1, "t": 1.0}', "field 'v' must be [major, minor]"),
-    (b'{"type": "tick", "v": [2, 0], "k": 1, "t": 1.0}', "protocol version 2.0 is not compatible with 1.0"),
+    (b'{"type": "tick", "v": [2, 0], "k": 1, "t": 1.0}', "protocol version 2.0 is not compatible with 1.1"),
     (b'{"type": "ack", "v": [1, 0], "name": "a/b", "session": "s", "k": 1}', "not a valid key chunk"),
 ])
 def test_bad_payloads_say_what_is_wrong(payload, words):
@@ -334,7 +335,7 @@ def test_incompatible_version_is_refused_naming_both_versions(buses):
     c = coordinator(buses("master"), "old")
     p = Participant(buses("old"), "old", "echo", version=(2, 0))
     with pytest.raises(Refused, match=r"protocol version 2\.0 of participant 'old' is incompatible with the "
-                                      r"master's protocol version 1\.0"):
+                                      r"master's protocol version 1\.1"):
         p.join(5)
     with pytest.raises(JoinTimeout, match="'old' was refused: protocol version 2.0"):
         c.wait_for_participants(0.2)

@@ -65,13 +65,16 @@ class Coordinator:
     def __init__(self, bus, expected: list[Expected], *, mode: str = "lockstep", latency_policy: str = "fixed",
                  heartbeat_s: float = 0.5, heartbeat_timeout_s: float = 3.0, resend_s: float = 0.25,
                  master_timeout_s: float = 10.0, on_refused: str = "wait",
-                 clock_ns: Callable[[], int] = time.time_ns, poll: Callable[[], None] | None = None):
+                 clock_ns: Callable[[], int] = time.time_ns, poll: Callable[[], None] | None = None,
+                 world: dict[str, Any] | None = None):
+        """`world`: what the join reply tells every app of the scenario's world (geodetic origin, ...)."""
         if latency_policy not in LATENCY_POLICIES:
             raise ValueError(f"latency policy must be one of {LATENCY_POLICIES}, got {latency_policy!r}")
         self.bus, self.mode, self.latency_policy = bus, mode, latency_policy
         self.heartbeat_s, self.heartbeat_timeout_s, self.resend_s = heartbeat_s, heartbeat_timeout_s, resend_s
         self.master_timeout_s, self.on_refused, self.clock_ns = master_timeout_s, on_refused, clock_ns
         self.poll = poll or (lambda: None)
+        self.world = dict(world or {})
         self.members = {e.name: _Member(e) for e in expected}
         self.refused: list[dict[str, Any]] = []
         self.protocol_errors: Counter = Counter()
@@ -288,7 +291,7 @@ class Coordinator:
                 spec = member.spec
                 welcome = m.Welcome(join.name, join.session, True, "", list(m.PROTOCOL_VERSION), self.mode,
                                     self.latency_policy, dict(spec.latencies), spec.sync_every, self.heartbeat_s,
-                                    self.master_timeout_s)
+                                    self.master_timeout_s, dict(self.world))
                 self._cond.notify_all()
         self.bus.publish(m.key(m.WELCOME, join.name), m.encode(welcome), self._t)
 

@@ -39,7 +39,7 @@ from typing import Any, ClassVar
 
 from bridges.timesync.errors import ProtocolError
 
-PROTOCOL_VERSION: tuple[int, int] = (1, 0)
+PROTOCOL_VERSION: tuple[int, int] = (1, 1)  # 1.1: Welcome.world
 NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]{0,63}$")  # a participant name is one key chunk
 
 JOIN, WELCOME, TICK, ACK, HEARTBEAT, LEAVE = "time/join", "time/welcome", "time/tick", "time/ack", "time/hb", "time/leave"
@@ -91,6 +91,9 @@ class Welcome:
     sync_every: int = 1
     heartbeat_s: float = 0.5
     master_timeout_s: float = 10.0
+    # what every app needs to know of the scenario's world (1.1): {"origin": {"lat", "lon", "alt"}, ...};
+    # see bridges.geo and master.participants for the keys the master fills in
+    world: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -124,6 +124,19 @@ class Participant:
     def mode(self) -> str | None:
         return self.welcome.mode if self.welcome else None
 
+    @property
+    def world(self) -> dict:
+        """What the master told us of the scenario's world in its welcome (empty before joining)."""
+        return dict(self.welcome.world) if self.welcome else {}
+
+    @property
+    def origin(self):
+        """The scenario's geodetic origin (bridges.geo.GeoOrigin) from the welcome; None if the master sent none."""
+        from bridges.geo import GeoOrigin
+
+        d = self.world.get("origin")
+        return GeoOrigin.from_dict(d) if d is not None else None
+
     # -- ticks ------------------------------------------------------------------
     def next_tick(self, timeout: float | None = None) -> m.Tick | None:
         """The next tick, or None when the run ended (or on timeout); MasterLost if the master went silent."""

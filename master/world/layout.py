@@ -4,6 +4,9 @@ Pure data and validation (no pybullet import), so `v2i validate` checks a
 world without building it. Frame: x east, y north, z up, metres; the
 intersection is centred at the origin, one road along x and one along y.
 
+    origin = { lat = 42.2808, lon = -83.7430, alt = 260.0 }   # WGS-84 of the local (0, 0, 0);
+                                    # default bridges.geo.DEFAULT_LAT/LON/ALT; apps get it when they join
+
     [world.intersection]            # all optional
     road_width = 7.0                # carriageway width of each road (m)
     lane_width = 3.5
@@ -52,10 +55,12 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from bridges.geo import GeoError, GeoOrigin
+
 DEFAULT_WHEELBASE = 2.3927  # VehicleDynamics default (CommonRoad vehicle 1)
 VEHICLE_KINDS = ("car", "emergency")
 TLC_MODEL = "TrafficLightController"
-_TOP = ("intersection", "buildings", "cameras", "vehicles", "signals")
+_TOP = ("origin", "intersection", "buildings", "cameras", "vehicles", "signals")
 _INTERSECTION = ("road_width", "lane_width", "arm_length", "sidewalk_width")
 _BUILDING = ("name", "x", "y", "size_x", "size_y", "height")
 _CAMERA = ("name", "x", "y", "z", "yaw", "pitch", "roll", "width", "height", "fov_deg", "rate_hz")
@@ -165,16 +170,28 @@ class WorldLayout:
     cameras: list[CameraSpec] = field(default_factory=list)
     vehicles: dict[str, VehicleSpec] = field(default_factory=dict)
     signals: list[SignalSpec] = field(default_factory=list)
+    origin: GeoOrigin = field(default_factory=GeoOrigin)
 
     @property
     def half_extent(self) -> float:
         return self.intersection.arm_length
+
+    def describe(self) -> dict[str, Any]:
+        """What every app is told of the world when it joins (bridges.timesync Welcome.world): the geodetic
+        origin, the intersection's geometry (centred at the origin, one road along x and one along y,
+        driving on the right) and the signal heads with the signal group each shows."""
+        from dataclasses import asdict
+
+        return {"origin": self.origin.to_dict(), "intersection": asdict(self.intersection),
+                "signals": [{"name": s.name, "x": s.x, "y": s.y, "yaw": s.yaw, "signal_group": s.signal_group}
+                            for s in self.signals]}
 
     def resolved(self) -> dict[str, Any]:
         """The [world] table with defaults filled in, loadable again (vehicles keyed by name)."""
         from dataclasses import asdict
 
         out = asdict(self)
+        out["origin"] = self.origin.to_dict()
         for v in out["vehicles"].values():
             v.pop("name")
             v["color"] = list(v["color"])
@@ -231,6 +248,11 @@ def parse_world(table: Any, instances: dict, problem: Callable[[str, str], None]
         if key not in _TOP:
             p("world", f"unknown key {key!r} (expected one of: {', '.join(_TOP)})")
     layout = WorldLayout()
+    if "origin" in table:
+        try:
+            layout.origin = GeoOrigin.from_dict(table["origin"])
+        except GeoError as exc:
+            p("world.origin", str(exc))
 
     inter = table.get("intersection", {})
     if not isinstance(inter, dict):

@@ -1,4 +1,4 @@
-"""From a detection box to the ground (local metres) and to WGS-84.
+"""From a detection box to the ground (local metres); `bridges.geo.GeoOrigin` takes it on to WGS-84.
 
 Camera model: P = K [R | t] with R = R_wc^T, t = -R position (OpenCV axes:
 x right, y down, z forward; world x east, y north, z up), as in the frames
@@ -32,13 +32,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bridges.geo import GeoError  # one error type for camera models, pixels and origins
+
 # length, width, height, ground clearance (m). The body's lowest edge, not the wheels' contact
 # patch, bounds the box at the vehicle's ends (the wheels are inset), hence the clearance.
 VEHICLE_SIZE = {"car": (4.5, 1.8, 1.5, 0.2), "emergency": (6.5, 2.3, 2.6, 0.27)}
 
 
-class GeoError(ValueError):
-    """A camera model or a pixel that cannot be mapped to the ground, with the reason."""
 
 
 def _finite(name: str, a, shape: tuple[int, ...]) -> np.ndarray:
@@ -208,30 +208,3 @@ def box_to_ground(box, camera: CameraModel, label: str = "car", heading: float |
     best = min((_fit(b, camera, start, yaw, dims) for yaw in np.linspace(0, math.pi, 6, endpoint=False)),
                key=lambda r: r[1])
     return best[0]
-
-
-@dataclass(frozen=True)
-class GeoOrigin:
-    """The scenario's local origin: world (0, 0, 0) is (lat0, lon0, h0) on WGS-84, x east, y north, z up."""
-
-    lat0: float
-    lon0: float
-    h0: float = 0.0
-
-    def __post_init__(self):
-        if not all(math.isfinite(v) for v in (self.lat0, self.lon0, self.h0)):
-            raise GeoError(f"geo origin must be finite, got {self}")
-        if not -90 <= self.lat0 <= 90 or not -180 <= self.lon0 <= 180:
-            raise GeoError(f"geo origin out of range: lat0 {self.lat0}, lon0 {self.lon0}")
-
-    def to_geodetic(self, x, y, z=0.0) -> tuple:
-        """Local ENU metres -> (lat deg, lon deg, ellipsoidal height m)."""
-        import pymap3d
-
-        return pymap3d.enu2geodetic(x, y, z, self.lat0, self.lon0, self.h0)
-
-    def to_local(self, lat, lon, h=None) -> tuple:
-        """(lat deg, lon deg, height m) -> local ENU metres (x east, y north, z up)."""
-        import pymap3d
-
-        return pymap3d.geodetic2enu(lat, lon, self.h0 if h is None else h, self.lat0, self.lon0, self.h0)
