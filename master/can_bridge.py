@@ -12,6 +12,7 @@ Scenario file::
     interface = "udp_multicast"     # or "virtual" (one process), "socketcan", "pcan", ...
     channel = "239.74.163.2"        # multicast group / bus channel (default per interface)
     port = 43113                    # udp_multicast only: another port keeps parallel runs apart
+    iface = "127.0.0.1"             # udp_multicast only: the interface's address (default: this host only)
     # bitrate = 500000              # real buses
     status_rate_hz = 50.0           # AV_Status rate; its period must be a multiple of the step
     command_timeout_s = 0.1         # simulated s without a new command before the fallback
@@ -76,7 +77,7 @@ from typing import Any, Callable
 
 import can
 
-from bridges.can.bus import BusConfig, open_bus
+from bridges.can.bus import DEFAULT_IFACE, BusConfig, open_bus
 from bridges.can.codec import (STATUS, CavCodec, CavCommand, CavHeartbeat, CavStatus, FrameError, Mode,
                                RollingCounter, RxChecker)
 from master.events import EventLog
@@ -85,7 +86,7 @@ from master.fmu_variables import family
 
 ON_TIMEOUT = ("brake", "zero_accel", "hold", "manual")
 SYNC_MODES = ("echo", "drain", "free")
-CAN_KEYS = ("vehicle", "interface", "channel", "port", "bitrate", "fd", "options", "status_rate_hz",
+CAN_KEYS = ("vehicle", "interface", "channel", "port", "iface", "bitrate", "fd", "options", "status_rate_hz",
             "command_timeout_s", "on_timeout", "timeout_accel", "estop_accel", "sync", "sync_timeout_s",
             "connect_timeout_s", "dbc", "accel_input", "steer_input", "reverse_input", "speed_output",
             "yaw_rate_output", "accel_output")
@@ -128,6 +129,7 @@ class CanConfig:
                                **{k: v for k, v in self.variables.items() if v}}
         if b.interface == "udp_multicast":
             out["port"] = b.kwargs()["port"]
+            out["iface"] = b.iface
         if b.bitrate is not None:
             out["bitrate"] = b.bitrate
         if b.fd:
@@ -253,7 +255,8 @@ def _parse(table, instances, connections, step, base_dir, bad) -> CanConfig | No
     if channel is not None and not isinstance(channel, (str, int)) or isinstance(channel, bool):
         fail("channel", f"expected a string (or number), got {channel!r}")
         channel = None
-    bus = BusConfig(interface, channel, table.get("bitrate"), table.get("port"), fd, dict(options))
+    bus = BusConfig(interface, channel, table.get("bitrate"), table.get("port"), fd, dict(options),
+                    table.get("iface", DEFAULT_IFACE))
     for key, reason in bus.problems():
         fail(key, reason)
 

@@ -1,7 +1,9 @@
 """Plain UDP backend: IP multicast by default, or a unicast peer list for boxes that cannot do multicast.
 
 Multicast: every bus binds the group port with SO_REUSEADDR/SO_REUSEPORT (several processes on one
-host can join) and joins the group; IP_MULTICAST_LOOP lets processes on the same host hear each other.
+host can join) and joins the group on interface `iface`, 127.0.0.1 by default, so by default nothing
+leaves this host (IP_MULTICAST_LOOP lets its processes hear each other); a box on the network sets
+`iface` to the address of its LAN interface.
 Unicast: each bus listens on its own `bind:port` and sends every datagram to each of `peers`.
 Either way a bus hears its own messages (delivered locally, as Zenoh does), not through the network.
 
@@ -51,7 +53,7 @@ class UdpBus(Bus):
 
     def __init__(self, *, prefix: str, sender: str, group: str | None = DEFAULT_GROUP, port: int = DEFAULT_PORT,
                  peers: list[str] | tuple[str, ...] = (), bind: str = "0.0.0.0", ttl: int = 1,
-                 iface: str = "0.0.0.0", loopback: bool = True, datagram_size: int = 1400,
+                 iface: str = "127.0.0.1", loopback: bool = True, datagram_size: int = 1400,
                  reassembly_timeout: float = 1.0, rcvbuf: int = 4 * 1024 * 1024, max_size: int = DEFAULT_MAX_SIZE):
         super().__init__(prefix=prefix, sender=sender, max_size=max_size)
         if not 21 <= datagram_size <= 65507:

@@ -54,7 +54,9 @@ _CONGESTION = {"block": zenoh.CongestionControl.BLOCK, "drop": zenoh.CongestionC
 
 class ZenohBus(Bus):
     """`connect`/`listen`: zenoh endpoints ("tcp/host:port", "udp/...", "tls/..."). `mode`: "peer" or
-    "client" (client needs a router). `multicast_scouting`: find peers on the LAN without endpoints.
+    "client" (client needs a router). `multicast_scouting`: find peers without endpoints, on the
+    interface `scouting_interface` ("lo" by default: peers on this host only, nothing leaves it; a box
+    on the network connects to an explicit endpoint, or name its interface, e.g. "eth0", to scout there).
     `congestion`: "block" (default: a lockstep tick must not vanish) or "drop" (a slow link drops).
     `express`: send at once instead of batching (lower latency, more packets). `config`: extra zenoh
     settings, a dict of {"path/in/config": value} or the path of a zenoh JSON5 config file."""
@@ -63,7 +65,7 @@ class ZenohBus(Bus):
 
     def __init__(self, *, prefix: str, sender: str, connect: list[str] | tuple[str, ...] = (),
                  listen: list[str] | tuple[str, ...] = (), mode: str = "peer", multicast_scouting: bool = True,
-                 congestion: str = "block", express: bool = True, config: dict | str | Path | None = None,
+                 scouting_interface: str = "lo", congestion: str = "block", express: bool = True, config: dict | str | Path | None = None,
                  max_size: int = DEFAULT_MAX_SIZE):
         super().__init__(prefix=prefix, sender=sender, max_size=max_size)
         if mode not in ("peer", "client"):
@@ -74,7 +76,7 @@ class ZenohBus(Bus):
         self._express = bool(express)
         self.endpoints = {"connect": list(connect), "listen": list(listen)}
         try:
-            cfg = self._config(config, mode, list(connect), list(listen), multicast_scouting)
+            cfg = self._config(config, mode, list(connect), list(listen), multicast_scouting, scouting_interface)
             self._session = zenoh.open(cfg)
         except (zenoh.ZError, ValueError, OSError) as exc:
             raise TransportError(f"zenoh could not open a {mode} session (listen {list(listen)}, connect "
@@ -84,7 +86,7 @@ class ZenohBus(Bus):
         _OPEN.add(self)
 
     @staticmethod
-    def _config(config, mode, connect, listen, scouting) -> "zenoh.Config":
+    def _config(config, mode, connect, listen, scouting, scouting_interface) -> "zenoh.Config":
         if isinstance(config, (str, Path)):
             cfg = zenoh.Config.from_file(str(config))
         else:
@@ -95,6 +97,10 @@ class ZenohBus(Bus):
         if listen:
             cfg.insert_json5("listen/endpoints", json.dumps(listen))
         cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(scouting)))
+        if scouting:
+            cfg.insert_json5("scouting/multicast/interface", json.dumps(str(scouting_interface)))
+            if not listen:  # found by scouting on this host: listen on this host only
+                cfg.insert_json5("listen/endpoints", json.dumps(["tcp/127.0.0.1:0"]))
         for path, value in (config.items() if isinstance(config, dict) else ()):
             cfg.insert_json5(path, json.dumps(value))
         return cfg
