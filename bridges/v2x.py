@@ -71,6 +71,19 @@ STAGES = {
 }
 
 
+# -- the UTC instant of a simulation time -------------------------------------------------------------
+# J2735 secMark and the 1609.2 generation time are UTC. The master tells every app, in its join reply
+# (Welcome.world[EPOCH]), the Unix time that simulation time 0 stands for (the wall clock when the run
+# opened its bus), so the apps stamp and check messages on one calendar, and certificates issued for
+# the run are valid at its simulated instants.
+EPOCH = "epoch_unix_s"
+
+
+def unix_time(t_sim: float, epoch_unix_s: float) -> float:
+    """The Unix time (s) of simulation time `t_sim` in a run whose time 0 is `epoch_unix_s`."""
+    return epoch_unix_s + t_sim
+
+
 def stamp_ns(t_sim: float) -> int:
     """A simulation time (s) as a trace stamp (int ns); ValueError for a non-finite time."""
     if not math.isfinite(t_sim):

@@ -53,6 +53,7 @@ from bridges.timesync.clock import TimeMapping
 from bridges.timesync.coordinator import LATENCY_POLICIES, Coordinator, Expected
 from bridges.timesync.errors import TimeSyncError
 from bridges.timesync.messages import NAME
+from bridges.v2x import EPOCH
 
 log = logging.getLogger(__name__)
 
@@ -319,6 +320,8 @@ class ParticipantBridge:
 
         b = self.spec.bridge
         self._step = step
+        # the Unix time simulation time t0 stands for: apps date their J2735/1609.2 messages from it
+        self.world[EPOCH] = time.time() - t0
         try:
             self.bus = open_bus(b.transport, prefix=self.prefix, sender="master", **b.bus_options())
         except (TransportError, OSError, ValueError, TypeError) as exc:  # port taken, bad endpoint, bad option

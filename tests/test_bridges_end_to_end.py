@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 import uuid
 from pathlib import Path
 
@@ -98,6 +99,7 @@ def _cav(prefix, out):
     def run():
         try:
             p.join(5)
+            out["world"] = p.world
             for tick in p.ticks():
                 while (msg := rx.recv(timeout=0.0)) is not None:
                     out["rx"].append((tick.t, msg.t_sim, msg.sender, msg.payload[:9], dict(msg.stamps)))
@@ -116,11 +118,16 @@ def _cav(prefix, out):
 def test_camera_to_rsu_app_and_v2x_through_the_air_to_the_cav(tmp_path, fmu_dir):
     prefix = f"test/e2e-{uuid.uuid4().hex[:8]}"
     out = {"frames": [], "rx": [], "fixes": []}
+    opened = time.time()
     apps = [_rsu(prefix, out), _cav(prefix, out)]
     result = CoSimulation(load_scenario(_scenario(tmp_path, prefix)), tmp_path / "run", quiet=True).run()
     for th in apps:
         th.join(5)
     assert result.status == "completed", result.error
+    # the join reply: the scenario's geodetic origin and the Unix time of simulation time 0
+    assert out["world"]["origin"] == {"lat": 42.2808, "lon": -83.743, "alt": 260.0}  # bridges.geo default
+    assert opened - 1 < out["world"]["epoch_unix_s"] < time.time()
+    assert out["world"]["intersection"]["road_width"] == 7.0
     # camera: 10 Hz frames of 640x480 with their camera model, seen at the tick of their own time
     frames = out["frames"]
     assert [f[2] for f in frames] == list(range(len(frames))) and 9 <= len(frames) <= 11
