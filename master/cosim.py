@@ -237,6 +237,7 @@ class CoSimulation:
                                             self.run_dir, t.start, t.step)
                 recorder.write_metadata(meta)
             if self.participants:
+                self.participants.serial_urls = dict(self.serial.urls)
                 recorder.write_metadata(meta)
                 meta["participants"] = self.participants.open(self.run_dir, t.start, t.step)
                 recorder.write_metadata(meta)

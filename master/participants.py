@@ -28,7 +28,8 @@ Scenario file::
 A participant without `command` is one the user starts (or a box on the
 network): the master waits `join_timeout_s` for it. A started one gets the
 bus in its environment: V2I_BUS, V2I_PREFIX, V2I_CONNECT, V2I_BUS_OPTIONS,
-V2I_NAME, V2I_ROLE; its output goes to `participant-<name>.log` in the run
+V2I_NAME, V2I_ROLE, and the URL of each serial port of the run as
+V2I_SERIAL_<NAME> (e.g. V2I_SERIAL_TLC=socket://127.0.0.1:40123); its output goes to `participant-<name>.log` in the run
 folder. In lockstep the master ticks at each sync point before stepping and
 waits for the acks; in realtime it publishes ticks and the sim/wall mapping and
 never waits.
@@ -295,6 +296,7 @@ class ParticipantBridge:
         without a [world] table, the default geodetic origin)."""
         self.spec, self.mode, self.rtf, self.quiet = spec, mode, rtf, quiet
         self.world = dict(world) if world is not None else {"origin": GeoOrigin().to_dict()}
+        self.serial_urls: dict[str, str] = {}  # [serial.NAME] -> its pyserial URL, once the ports are open
         self.prefix = None
         if spec is not None:
             safe = re.sub(r"[^A-Za-z0-9_.\-]", "_", run_name) or "run"
@@ -398,6 +400,8 @@ class ParticipantBridge:
         env.update({"V2I_BUS": b.transport, "V2I_PREFIX": self.prefix, "V2I_CONNECT": ",".join(connect),
                     "V2I_BUS_OPTIONS": json.dumps(options), "V2I_NAME": p.name, "V2I_ROLE": p.role or "",
                     "PYTHONUNBUFFERED": "1"})
+        for name, url in self.serial_urls.items():  # the run's serial ports, e.g. V2I_SERIAL_TLC
+            env[serial_env(name)] = _reachable(url)
         env.update(p.env)
         return env
 
@@ -445,6 +449,11 @@ class ParticipantBridge:
                     proc.wait()
             entry = self.exits.setdefault(name, {"pid": proc.pid, "returncode": proc.returncode, "during_run": False})
             entry.update(returncode=proc.returncode, stopped=how)
+
+
+def serial_env(name: str) -> str:
+    """The environment variable that gives a started app the URL of serial port `name`."""
+    return "V2I_SERIAL_" + re.sub(r"[^A-Za-z0-9]", "_", name).upper()
 
 
 def _reachable(endpoint: str) -> str:

@@ -264,3 +264,15 @@ def test_a_bus_that_cannot_open_fails_the_run_with_the_reason(write_scenario, tm
     result = CoSimulation(load_scenario(path), tmp_path / "run", quiet=True).run()
     assert result.status == "failed"
     assert result.error.startswith("[bridge]: cannot open the memory bus") and "bogus" in result.error
+
+
+def test_started_apps_get_the_bus_and_the_serial_ports_in_their_environment(write_scenario):
+    from master.participants import ParticipantBridge, serial_env
+
+    sc = load_scenario(scenario(write_scenario, bus_tables("zenoh") + echo("rsu")))
+    bridge = ParticipantBridge(sc.participants, "lockstep", 1.0, "x")
+    bridge.serial_urls = {"tlc": "socket://0.0.0.0:7001", "ped-2": "socket://127.0.0.1:7002"}
+    env = bridge.child_env(sc.participants.participants["rsu"])
+    assert env["V2I_NAME"] == "rsu" and env["V2I_BUS"] == "zenoh" and env["V2I_PREFIX"] == bridge.prefix
+    assert env["V2I_SERIAL_TLC"] == "socket://127.0.0.1:7001"  # a wildcard listen is reached on loopback
+    assert env[serial_env("ped-2")] == "socket://127.0.0.1:7002" and serial_env("ped-2") == "V2I_SERIAL_PED_2"
