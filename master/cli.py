@@ -110,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     from bridges.j2735 import cli as j2735_cli
     from bridges.security import cli as pki_cli
 
-    from master.world import dataset_cli, snapshot
+    from master import dataset_cli, snapshot
     from rsu_app.perception import cli as perception_cli  # the RSU's detector tools share the `v2i` command
 
     j2735_cli.add_parser(sub)

@@ -12,6 +12,10 @@ writes into the output folder:
   scan at T coloured by what each ray hit, vehicle hits highlighted);
 * `snapshot.json`: the poses, speeds, signal states and lidar hits drawn.
 
+It lives beside the stepping loop, not in `master/world/`, because it drives
+both: `master.cosim` imports the world, so a world module importing the loop
+would close an import cycle (tests/test_boundaries.py).
+
 Module-level imports stay light (the CLI imports this file to build its
 parser); pybullet and matplotlib are imported when a snapshot is taken.
 """

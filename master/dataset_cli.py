@@ -1,4 +1,9 @@
-"""`v2i dataset`: labelled camera frames from a scenario's world."""
+"""`v2i dataset`: labelled camera frames from a scenario's world.
+
+Beside the scenario reader, not in `master/world/`: it loads a scenario, and
+`master.scenario` imports `master.world.layout`, so a world module reading
+scenarios would close an import cycle (tests/test_boundaries.py).
+"""
 from __future__ import annotations
 
 import sys
