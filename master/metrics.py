@@ -1,0 +1,167 @@
+"""metrics.json: what a run of the case study measured, from what the run recorded.
+
+Field names are a contract (README, "metrics.json"); sweeps collect them into
+tables. Everything here is a pure function of the run's records, so a run
+folder can be re-measured after the fact (`v2i report` does):
+
+* the collision check's results (master.collision): `collision`,
+  `first_collision_s`, `min_gap_m`, `min_ttc_s`, `pet_s`;
+* `latency_ms`: `stage1`, `stage2`, `air`, `stage3`, `e2e`, each
+  `{p50, p99, max, n}` in milliseconds of simulated time, from the apps' trace
+  records (`trace.jsonl`, stamps named in bridges.v2x) joined with the CAN
+  gateway's `can-applied.csv` (a record's AV_Command counter -> the time the
+  gateway applied it = CAN_APPLIED);
+* `pdr`: per directed link "tx->rx", frames delivered / frames decided
+  (delivered + dropped; frames still in flight at the end are not decided),
+  with the counts; `ipg_ms`: per link, the gaps between consecutive deliveries
+  at the receiver;
+* `aoi_ms`: age of information of a subject vehicle at a receiver: at every
+  sample time after the first delivery, now - the camera-frame time of the
+  freshest information about the subject that had arrived; `{p50, p99, max, n}`
+  (the air ties each frame to the vehicle it describes, see master.radio_bridge);
+* `time_mode`, `latency_policy`: under which rules the numbers were taken.
+"""
+from __future__ import annotations
+
+import bisect
+import csv
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Iterable
+
+from bridges.v2x import CAN_APPLIED, CAN_COMMAND, FRAME, STAGES, stage_ms, stamp_ns, stamp_s
+from master.stats import percentiles
+
+METRICS = "metrics.json"
+TRACE = "trace.jsonl"
+APPLY_WINDOW_S = 2.0  # a record's counter is matched to an application at most this long after the command
+
+
+def summary(samples: Iterable[float]) -> dict[str, float | int | None]:
+    """{p50, p99, max, n} of samples (None values when there are none)."""
+    s = percentiles(list(samples), (50, 99))
+    return {"p50": s["p50"], "p99": s["p99"], "max": s["max"], "n": s["n"]}
+
+
+# -- latency ----------------------------------------------------------------------------------------------
+def applied_times(rows: Iterable[dict[str, str]]) -> dict[int, list[float]]:
+    """can-applied.csv rows -> AV_Command counter -> sorted times the gateway applied a command with it."""
+    out: dict[int, list[float]] = defaultdict(list)
+    for row in rows:
+        if row.get("event") != "command" or not row.get("counter"):
+            continue
+        out[int(row["counter"])].append(float(row["t"]))
+    for times in out.values():
+        times.sort()
+    return dict(out)
+
+
+def with_can_applied(record: dict[str, Any], applied: dict[int, list[float]]) -> dict[str, int]:
+    """A trace record's stamps, with CAN_APPLIED added when its command was applied (counters wrap at 256:
+    the first application at or after the command, within APPLY_WINDOW_S)."""
+    stamps = {k: int(v) for k, v in record.get("stamps", {}).items()}
+    counter = record.get("can_counter")
+    if counter is None or CAN_COMMAND not in stamps:
+        return stamps
+    sent = stamp_s(stamps[CAN_COMMAND])
+    times = applied.get(int(counter), [])
+    i = bisect.bisect_left(times, sent - 1e-9)
+    if i < len(times) and times[i] - sent <= APPLY_WINDOW_S:
+        stamps[CAN_APPLIED] = stamp_ns(times[i])
+    return stamps
+
+
+def latency_metrics(records: Iterable[dict[str, Any]], applied: dict[int, list[float]]) -> dict[str, Any]:
+    """latency_ms.{stage1, stage2, air, stage3, e2e} over every record that has both ends of a stage."""
+    per_stage: dict[str, list[float]] = {name: [] for name in STAGES}
+    for record in records:
+        stamps = with_can_applied(record, applied)
+        for name in STAGES:
+            value = stage_ms(stamps, name)
+            if value is not None:
+                per_stage[name].append(value)
+    return {name: summary(values) for name, values in per_stage.items()}
+
+
+# -- the air ----------------------------------------------------------------------------------------------
+def link_metrics(events: Iterable[dict[str, Any]]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(pdr, ipg_ms) per directed link "tx->rx" from the air's events."""
+    counts: dict[str, dict[str, int]] = defaultdict(lambda: {"delivered": 0, "dropped": 0})
+    arrivals: dict[str, list[float]] = defaultdict(list)
+    for e in events:
+        kind = e.get("event")
+        if kind not in ("v2x_delivered", "v2x_dropped") or "to" not in e:
+            continue
+        link = f"{e['from']}->{e['to']}"
+        if kind == "v2x_delivered":
+            counts[link]["delivered"] += 1
+            arrivals[link].append(float(e["t"]))
+        else:
+            counts[link]["dropped"] += 1
+    pdr = {}
+    for link, c in sorted(counts.items()):
+        decided = c["delivered"] + c["dropped"]
+        pdr[link] = {"pdr": c["delivered"] / decided if decided else None, **c}
+    ipg = {}
+    for link, times in sorted(arrivals.items()):
+        times.sort()
+        ipg[link] = summary((b - a) * 1e3 for a, b in zip(times, times[1:]))
+    return pdr, ipg
+
+
+def aoi_metrics(deliveries: Iterable[tuple[float, float]], t_end: float, dt: float) -> dict[str, Any]:
+    """Age of information: deliveries are (arrival time, camera-frame time of the information), sampled
+    every dt from the first arrival to t_end."""
+    items = sorted(deliveries)
+    if not items:
+        return summary([])
+    ages, freshest, i = [], -math.inf, 0
+    n = int(math.floor((t_end - items[0][0]) / dt + 1e-9)) + 1
+    for k in range(n):
+        t = items[0][0] + k * dt
+        while i < len(items) and items[i][0] <= t + 1e-12:
+            freshest = max(freshest, items[i][1])
+            i += 1
+        ages.append((t - freshest) * 1e3)
+    return summary(ages)
+
+
+def subject_deliveries(events: Iterable[dict[str, Any]], receiver: str, subject: str) -> list[tuple[float, float]]:
+    """(arrival, frame time) of the frames delivered to `receiver` that the air tied to vehicle `subject`
+    (its `v2x_delivered` events carry `subject` and `frame_t` when it could: see master.radio_bridge)."""
+    return [(float(e["t"]), float(e["frame_t"])) for e in events
+            if e.get("event") == "v2x_delivered" and e.get("to") == receiver and e.get("subject") == subject
+            and e.get("frame_t") is not None]
+
+
+# -- run folders ------------------------------------------------------------------------------------------
+def read_jsonl(path: Path) -> list[dict[str, Any]]:
+    """The JSON objects of a .jsonl file; a torn last line (a killed run) is skipped, not fatal."""
+    out = []
+    if not path.exists():
+        return out
+    for line in path.read_text().splitlines():
+        try:
+            item = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(item, dict):
+            out.append(item)
+    return out
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    if not path.exists():
+        return []
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def write_metrics(run_dir: Path, metrics: dict[str, Any]) -> Path:
+    path = Path(run_dir) / METRICS
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(metrics, indent=2, default=str) + "\n")
+    tmp.replace(path)
+    return path
