@@ -1,14 +1,34 @@
 """The `v2i` command line.
 
+The master's own commands (build-fmus, validate, run, info) are defined here;
+every other command is contributed through the `v2i.commands` entry points
+(pyproject.toml), the way pytest and flask find their plugins: each entry
+point's name is a command and its value a function `add_parser(subparsers)`
+that adds it (a function adding several commands is named once per command
+and called once). So the master imports no app: the RSU app's detector tools
+and the evaluation tools join the one `v2i` command from their own packages.
+
+Loading the entry points stays cheap (their modules import nothing heavy at
+module level), and a contributed command that cannot run here says why in one
+line instead of a traceback: a missing optional extra (torch, onnxruntime)
+names the extra to install; an entry point whose module cannot be imported
+still leaves `v2i --help` working and answers with the reason when run.
+
 Exit codes: 0 success, 1 the run failed (FMU error, deadline miss,
-interrupted), 2 bad input (scenario, FMU file, arguments).
+interrupted), 2 bad input (scenario, FMU file, arguments) or a command that
+cannot run in this installation (missing extra, broken entry point).
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import re
 import sys
 from dataclasses import replace
 from pathlib import Path
+
+COMMANDS_GROUP = "v2i.commands"  # entry-point group of the contributed commands
+DISTRIBUTION = "v2i-cosim"  # whose optional extras the missing-module hint names
 
 
 
@@ -107,23 +127,92 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("fmu", help="an .fmu file or a project FMU name")
     i.set_defaults(func=_cmd_info)
 
-    from bridges.j2735 import cli as j2735_cli
-    from bridges.security import cli as pki_cli
-
-    from master import dataset_cli, snapshot
-    from rsu_app.perception import cli as perception_cli  # the RSU's detector tools share the `v2i` command
-
-    j2735_cli.add_parser(sub)
-    pki_cli.add_parser(sub)
-    snapshot.add_parser(sub)
-    dataset_cli.add_parser(sub)
-    perception_cli.add_parser(sub)  # train-detector, eval-detector, eval-tracker, export-detector
+    add_contributed_commands(sub)
     return p
 
 
+def add_contributed_commands(sub: argparse._SubParsersAction, entry_points=None) -> None:
+    """Add the commands of the `v2i.commands` entry points to `sub` (`entry_points`: an iterable of
+    importlib.metadata.EntryPoint, default the installed ones). An entry point that cannot be loaded,
+    or whose function did not add its command, becomes a command that says why when run."""
+    if entry_points is None:
+        from importlib.metadata import entry_points as installed
+
+        entry_points = installed(group=COMMANDS_GROUP)
+    by_target: dict[str, list] = {}
+    for ep in entry_points:
+        by_target.setdefault(ep.value, []).append(ep)
+    for target, eps in sorted(by_target.items(), key=lambda item: min(ep.name for ep in item[1])):
+        names = sorted({ep.name for ep in eps})
+        try:
+            add_parser = eps[0].load()
+        except Exception as exc:  # noqa: BLE001 - any failure to import a plugin must leave `v2i` usable
+            reason = missing_module_hint(exc) or f"cannot load {target}: {type(exc).__name__}: {exc}"
+            for name in names:
+                _add_unavailable(sub, name, reason)
+            continue
+        add_parser(sub)
+        for name in names:
+            if name not in sub.choices:
+                _add_unavailable(sub, name, f"the entry point {name} = {target} did not add the command")
+
+
+def _add_unavailable(sub: argparse._SubParsersAction, name: str, reason: str) -> None:
+    """A command that only says why it cannot run (exit 2), whatever its arguments."""
+    p = sub.add_parser(name, help=f"(unavailable: {reason})", description=f"unavailable: {reason}")
+    p.set_defaults(func=lambda args: _cannot_run(name, reason), accepts_any_arguments=True)
+
+
+def _cannot_run(command: str, reason: str) -> int:
+    print(f"v2i {command}: {reason}", file=sys.stderr)
+    return 2
+
+
+def missing_module_hint(exc: BaseException) -> str | None:
+    """One line saying which optional extra (or package) a ModuleNotFoundError asks for, or None when
+    the missing module is not a missing installation (a module of an installed package, a bug)."""
+    if not isinstance(exc, ModuleNotFoundError) or not exc.name:
+        return None
+    top = exc.name.split(".")[0]
+    try:
+        if importlib.util.find_spec(top) is not None:
+            return None  # the package is there: a missing submodule is not an extra to install
+    except (ImportError, ValueError):
+        pass
+    extra = _extra_providing(top)
+    if extra:
+        return f"needs the '{extra}' extra: pip install '{DISTRIBUTION}[{extra}]'"
+    return f"needs the Python package '{top}', which is not installed"
+
+
+def _extra_providing(module: str) -> str | None:
+    """The optional extra of this distribution that requires a package importable as `module`."""
+    from importlib.metadata import PackageNotFoundError, requires
+
+    try:
+        requirements = requires(DISTRIBUTION) or []
+    except PackageNotFoundError:
+        return None
+    for req in requirements:
+        name = re.match(r"\s*([A-Za-z0-9][A-Za-z0-9._-]*)", req)
+        extra = re.search(r"""extra\s*==\s*["']([^"']+)["']""", req)
+        if name and extra and re.sub(r"[-_.]+", "_", name.group(1)).lower() == module.lower():
+            return extra.group(1)
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    return args.func(args)
+    parser = build_parser()
+    args, unknown = parser.parse_known_args(argv)
+    if unknown and not getattr(args, "accepts_any_arguments", False):
+        args = parser.parse_args(argv)  # argparse's own error for the arguments it does not know (exit 2)
+    try:
+        return args.func(args)
+    except ModuleNotFoundError as exc:
+        hint = missing_module_hint(exc)
+        if hint is None:
+            raise
+        return _cannot_run(args.command, hint)
 
 
 def entry() -> None:

@@ -4,7 +4,8 @@ Three detectors over the same frames: an oracle reading the renderer's
 segmentation (isolates projection and tracking: their own error), the same
 oracle with every box pushed 12 px down (the score must see a broken
 projection), and the shipped torch weights (the whole chain; bounds looser
-than the full-sequence figures in rsu_app/perception/weights/RECIPE.md).
+than the full-sequence figures in rsu_app/perception/weights/RECIPE.md). The evaluation lives in
+evaluation/ (it needs the simulator's world, which the RSU app never imports).
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ torch = pytest.importorskip("torch")
 from master.world.ground_truth import mask_box  # noqa: E402
 from rsu_app.perception import make_detector  # noqa: E402
 from rsu_app.perception.detector import Detection  # noqa: E402
-from rsu_app.perception.sequence import evaluate_sequence  # noqa: E402
+from evaluation.tracker_sequence import evaluate_sequence  # noqa: E402
 
 SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ima_case_study.toml"
 STRETCH = dict(start=3.0, stop=5.5, min_age=1.0)  # the ev is within 60 m of the camera from t = 2.8 s

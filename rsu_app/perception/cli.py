@@ -1,5 +1,9 @@
-"""`v2i train-detector`, `v2i eval-detector`, `v2i eval-tracker` and `v2i export-detector` (added to the
-master's CLI).
+"""`v2i train-detector`, `v2i eval-detector` and `v2i export-detector`.
+
+The master's CLI finds them through the `v2i.commands` entry points (pyproject.toml) and never
+imports the app; this module imports nothing of the project outside the app, and
+nothing heavy at module level (torch is imported when a command runs). The tracker's evaluation on
+a scenario, which needs the simulator's world, is `v2i eval-tracker` in `evaluation/`.
 
 Exit codes as the rest of `v2i`: 0 success, 1 failure while running, 2 bad input.
 """
@@ -40,22 +44,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="lowest score kept (low for AP; recall bins use it too)")
     e.add_argument("--json", action="store_true", help="print JSON instead of a table")
     e.set_defaults(func=_cmd_eval)
-
-    k = sub.add_parser("eval-tracker", help="detect, project and track the scenario's camera sequence; "
-                                           "position/speed/heading errors against the simulator's truth")
-    k.add_argument("--scenario", required=True, help="scenario file with a [world] camera (e.g. the IMA case study)")
-    k.add_argument("--detector", default="torch", help="backend: torch or onnx (default torch, shipped weights)")
-    k.add_argument("--weights", help="weights file (default the shipped ones)")
-    k.add_argument("--threads", type=int, default=None)
-    k.add_argument("--start", type=float, help="first frame time (default the scenario's start)")
-    k.add_argument("--stop", type=float, help="last frame time (default the scenario's stop)")
-    k.add_argument("--rate", type=float, help="frame rate in Hz (default the camera's)")
-    k.add_argument("--near", type=float, default=60.0, help="score vehicles within this range of the camera (m)")
-    k.add_argument("--min-age", type=float, default=1.0, help="score tracks older than this (s)")
-    k.add_argument("--motion", default="cv", choices=("cv", "ctrv"),
-                   help="tracker motion model: constant velocity (default) or constant turn rate and velocity")
-    k.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    k.set_defaults(func=_cmd_eval_tracker)
 
     x = sub.add_parser("export-detector", help="export trained detector weights to ONNX")
     x.add_argument("--weights", required=True)
@@ -129,26 +117,6 @@ def _cmd_eval(args) -> int:
         return 2
     report = evaluate(det, ds)
     print(json.dumps(report.to_dict(), indent=2) if args.json else report.table())
-    return 0
-
-
-def _cmd_eval_tracker(args) -> int:
-    from master.scenario import ScenarioError
-    from rsu_app.perception.detector import DetectorError, make_detector
-    from rsu_app.perception.sequence import evaluate_sequence
-    from rsu_app.perception.tracker import Tracker
-
-    try:
-        opts: dict = {"weights": args.weights}
-        if args.threads is not None:
-            opts["threads"] = args.threads
-        det = make_detector(args.detector, **opts)
-        rep = evaluate_sequence(args.scenario, det, start=args.start, stop=args.stop, rate_hz=args.rate,
-                                near_m=args.near, min_age=args.min_age, tracker=Tracker(motion=args.motion))
-    except (DetectorError, ScenarioError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(json.dumps(rep.to_dict(), indent=2) if args.json else rep.table())
     return 0
 
 

@@ -1,7 +1,13 @@
 """The whole RSU perception chain on the case-study sequence, scored against the simulator's truth.
 
+    from evaluation.tracker_sequence import evaluate_sequence
+    from rsu_app.perception import make_detector
+
     rep = evaluate_sequence("scenarios/ima_case_study.toml", make_detector("torch"))
     print(rep.table())
+
+An evaluation tool, not part of the RSU app: it poses the simulator's world
+and reads its truth (master), which the app itself never imports.
 
 The scenario's vehicles are posed along their trajectories (both drive
 straight at constant speed in the IMA case study: x0, y0, yaw0, v0 of each
@@ -28,11 +34,12 @@ from typing import Callable
 
 import numpy as np
 
+from master.scenario import load_scenario
+from master.world.dataset import MIN_VISIBLE_PIXELS  # fewer visible pixels is not a vehicle anyone could see
+from master.world.world import World
 from rsu_app.perception.detector import Detector
 from rsu_app.perception.geo import CameraModel, GeoError, box_to_ground, rough_ground_point
 from rsu_app.perception.tracker import GroundDetection, Tracker
-
-MIN_VISIBLE_PIXELS = 40  # as master.world.dataset: fewer visible pixels is not a vehicle anyone could see
 
 
 def constant_speed(scenario) -> Callable[[str, float], tuple[float, float, float, float]]:
@@ -123,9 +130,6 @@ def evaluate_sequence(scenario: str | Path, detector: Detector, *, start: float 
 
     start/stop default to the scenario's [time]; rate_hz to the camera's; `size` (W, H) renders smaller
     frames for quick checks (the intrinsics follow)."""
-    from master.scenario import load_scenario
-    from master.world.world import World
-
     sc = load_scenario(scenario)
     if sc.world is None or not sc.world.cameras:
         raise ValueError(f"{scenario}: the scenario has no [world] camera")
