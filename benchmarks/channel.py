@@ -24,7 +24,7 @@
    (Gonzalez-Martin et al., 20 dBm, 4 subchannels, 0.1 veh/m at 10 Hz), each
    in line of sight and with one corner building in the way (2 walls, 10 m
    inside: 21.9 dB of Sommer et al. building loss), beside the published
-   curves of ../shared/anchors/pdr_vs_distance.csv; markers are per-packet
+   curves of tests/fixtures/anchors/pdr_vs_distance.csv; markers are per-packet
    delivery ratios drawn by the model (4000 links at independent places per
    distance), which should sit on the analytical lines.
 Results go to benchmarks/results/channel.json and channel_pdr.png.
@@ -52,9 +52,8 @@ if str(ROOT) not in sys.path:  # run as a plain script from anywhere
     sys.path.insert(0, str(ROOT))
 
 RESULTS = ROOT / "benchmarks" / "results"
-ANCHORS = next((p for p in (ROOT.parent / "shared" / "anchors" / "pdr_vs_distance.csv",
-                            Path("/work/shared/anchors/pdr_vs_distance.csv")) if p.exists()),
-               ROOT.parent / "shared" / "anchors" / "pdr_vs_distance.csv")
+# the published PDR curves behind anchors C11/C12 (docs/anchors.md), carried with the tests
+ANCHORS = ROOT / "tests" / "fixtures" / "anchors" / "pdr_vs_distance.csv"
 NS = (1, 100, 10_000)
 MAX_INSTANCES = 100
 CONFIGS = {

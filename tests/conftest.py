@@ -7,21 +7,20 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+FIXTURES = ROOT / "tests" / "fixtures"
 
 
-def shared_dir() -> Path | None:
-    """The workplace's shared/ folder (ANCHORS.md, interop/, anchors/), wherever this checkout is.
+def fixture_path(relative: str) -> Path:
+    """A data file the tests carry in tests/fixtures/ (tests/fixtures/README.md says where each comes from).
 
-    V2I_SHARED_DIR wins; then shared/ beside the checkout (the normal layout),
-    then /work/shared (where CI's clean clones in a temporary folder find it).
+    A missing file is an error naming the path, never a skip: a test that cannot
+    see its data has not passed.
     """
-    import os
-
-    candidates = [os.environ.get("V2I_SHARED_DIR"), ROOT.parent / "shared", "/work/shared"]
-    for candidate in candidates:
-        if candidate and (Path(candidate) / "ANCHORS.md").exists():
-            return Path(candidate)
-    return None
+    path = FIXTURES / relative
+    if not path.is_file():
+        raise FileNotFoundError(f"test data {path} is missing (tests/fixtures/README.md lists every file the "
+                                "tests carry and where it comes from)")
+    return path
 
 
 @pytest.fixture(scope="session")

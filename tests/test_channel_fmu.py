@@ -1,6 +1,6 @@
 """The V2XChannel FMU stepped by fmpy: path loss, building loss and PDR anchors through FMI.
 
-Anchors C2, C3, C5, C10, C11, C12 (../shared/ANCHORS.md) read from the built FMU's
+Anchors C2, C3, C5, C10, C11, C12 (docs/anchors.md) read from the built FMU's
 outputs; String parameters (technology, pathloss_model), Integer inputs (seq,
 walls, packet_bytes), determinism under a seed and independence of the step size,
 and bad inputs and parameters turned into FMI errors with a message.

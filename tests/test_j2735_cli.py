@@ -11,8 +11,6 @@ import pytest
 from master.cli import main
 from test_j2735_vectors import BARE, VECTORS
 
-pytestmark = pytest.mark.skipif(not VECTORS, reason="interop vectors not found")
-
 
 def _decode(capsys, hex_text):
     code = main(["j2735", "decode", hex_text])

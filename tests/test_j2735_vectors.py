@@ -1,4 +1,4 @@
-"""Wire compatibility with real deployments: ../shared/interop/j2735_vectors.json.
+"""Wire compatibility with real deployments: tests/fixtures/interop/j2735_vectors.json.
 
 Every bare BSM, SPaT, MAP, SRM and SSM decodes, reproduces the values
 published beside it and re-encodes to the same bytes (trailing bytes after
@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from pathlib import Path
 
 import pytest
 
@@ -19,14 +18,13 @@ from bridges.j2735.codec import BUILTIN_MODULE
 from bridges.security import SecurityFormatError, open_unsecured
 from bridges.security.oer import decode as decode_1609
 
-from conftest import shared_dir
+from conftest import fixture_path
 
-SHARED = shared_dir()
-VECTORS_PATH = SHARED / "interop" / "j2735_vectors.json" if SHARED else Path("shared/interop/j2735_vectors.json")
-VECTORS = json.loads(VECTORS_PATH.read_text()) if VECTORS_PATH.exists() else []
+# Read at import: the tests below are parametrized over the vectors, so a missing file is a
+# collection error naming it (every dependent module fails), never a silent skip.
+VECTORS_PATH = fixture_path("interop/j2735_vectors.json")
+VECTORS = json.loads(VECTORS_PATH.read_text())
 BARE = {"BSM": 20, "SPaT": 19, "MAP": 18, "SRM": 29, "SSM": 30}
-
-pytestmark = pytest.mark.skipif(not VECTORS, reason=f"interop vectors not found at {VECTORS_PATH}")
 
 
 LICENSED_DIR = os.environ.get("V2I_J2735_ASN1_DIR")
