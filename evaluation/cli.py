@@ -32,7 +32,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_eval_tracker(args) -> int:
-    from evaluation.tracker_sequence import evaluate_sequence
     from master.scenario import ScenarioError
     from rsu_app.perception.detector import DetectorError, make_detector
     from rsu_app.perception.tracker import Tracker
@@ -41,7 +40,9 @@ def _cmd_eval_tracker(args) -> int:
         opts: dict = {"weights": args.weights}
         if args.threads is not None:
             opts["threads"] = args.threads
-        det = make_detector(args.detector, **opts)
+        det = make_detector(args.detector, **opts)  # first: a missing backend is said before the world loads
+        from evaluation.tracker_sequence import evaluate_sequence
+
         rep = evaluate_sequence(args.scenario, det, start=args.start, stop=args.stop, rate_hz=args.rate,
                                 near_m=args.near, min_age=args.min_age, tracker=Tracker(motion=args.motion))
     except (DetectorError, ScenarioError, ValueError) as exc:
