@@ -38,7 +38,7 @@ if str(ROOT) not in sys.path:  # run as a plain script from anywhere
     sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
-import pybullet as pb  # noqa: E402
+from master.world.quiet_pybullet import pybullet as pb  # noqa: E402
 
 from benchmarks.common import RESULTS, machine_info, summary, write_report  # noqa: E402
 from master.world.layout import VehicleSpec, WorldLayout  # noqa: E402

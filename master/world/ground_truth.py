@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as pb
+from master.world.quiet_pybullet import pybullet as pb
 
 from master.world.camera import Camera, Frame
 from master.world.scene import Scene

@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as pb
+from master.world.quiet_pybullet import pybullet as pb
 
 from master.world.layout import LidarSpec, VehicleSpec
 

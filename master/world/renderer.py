@@ -10,7 +10,7 @@ import glob
 import os
 import pkgutil
 
-import pybullet as pb
+from master.world.quiet_pybullet import pybullet as pb
 
 RENDERERS = ("auto", "tiny", "egl")
 ENV = "V2I_RENDERER"

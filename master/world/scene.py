@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 
-import pybullet as pb
+from master.world.quiet_pybullet import pybullet as pb
 
 from master.world import signals
 from master.world.layout import SignalSpec, VehicleSpec, WorldLayout
