@@ -25,7 +25,13 @@ demo: fmus
 test: fmus
 	$(BIN)/python -m pytest -q
 
-bench: fmus
+# The perception benchmark's held-out dataset (README, RECIPE.md): rendered once, about 3 minutes.
+HELDOUT := data/heldout/annotations.json
+$(HELDOUT): | fmus
+	$(BIN)/v2i dataset --scenario scenarios/ima_case_study.toml --out data/heldout --frames 400 --seed 1001 \
+	    --variant heldout --backgrounds --jobs 2
+
+bench: fmus $(HELDOUT)
 	$(BIN)/python benchmarks/master_overhead.py
 	$(BIN)/python benchmarks/j2735_codec.py
 	$(BIN)/python benchmarks/serial_link.py

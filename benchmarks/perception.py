@@ -1,6 +1,6 @@
 """Benchmark: the RSU perception design space (the seed paper's Table 2, on this machine's CPU).
 
-    python benchmarks/perception.py [--data /work/data/heldout] [--frames 200] [--threads 1 2]
+    python benchmarks/perception.py [--data data/heldout] [--frames 200] [--threads 1 2]
                                     [--json PATH] [--quick]
 
 For each backend (torch and onnx with the shipped weights, the classical
@@ -55,6 +55,10 @@ PAPER = [("seed paper YOLOv7, 8-core CPU", 1 / PAPER_CPU_S), ("seed paper YOLOv7
          ("seed paper YOLOv7, Zynq 7020 FPGA", 10.0), ("requirement (10 Hz BSMs)", 10.0)]
 STAGES = ("preprocess", "inference", "postprocess", "projection", "tracking", "projection_cold")
 SCORE = 0.05
+DEFAULT_DATA = ROOT / "data" / "heldout"
+# the command that writes the default dataset (as README.md and rsu_app/perception/weights/RECIPE.md give it)
+MAKE_HELDOUT = ("v2i dataset --scenario scenarios/ima_case_study.toml --out {out} --frames 400 --seed 1001 "
+                "--variant heldout --backgrounds --jobs 2")
 
 
 def _learned_stages(det, rgb):
@@ -140,9 +144,18 @@ def run_backend(name: str, threads: int, ds: Dataset, frames: list, operating: f
             "ap": rep.ap["overall"]}
 
 
+def _shown(path: Path) -> str:
+    """`path` as the user would type it from the repository root (relative when it is inside)."""
+    try:
+        return str(path.resolve().relative_to(ROOT))
+    except ValueError:
+        return str(path)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default="/work/data/heldout", help="dataset folder (640x480 frames)")
+    ap.add_argument("--data", type=Path, default=DEFAULT_DATA,
+                    help="dataset folder of `v2i dataset` with --backgrounds (default: data/heldout in the repository)")
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--backends", nargs="+", default=["torch", "onnx", "classical"])
@@ -151,6 +164,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.quick:
         args.frames, args.threads = min(args.frames, 40), [1]
+    if not (args.data / "annotations.json").is_file():
+        print(f"error: no dataset in {args.data} (no annotations.json). Make it first, from the repository root:\n"
+              f"  {MAKE_HELDOUT.format(out=_shown(args.data))}", file=sys.stderr)
+        return 2
     import onnxruntime
     import torch
 
