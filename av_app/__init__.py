@@ -1,0 +1,1 @@
+"""The connected automated vehicle's software (stage 3)."""

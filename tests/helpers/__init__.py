@@ -1,0 +1,1 @@
+"""Test participants and helpers (processes the tests start beside the apps)."""
