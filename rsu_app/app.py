@@ -1,0 +1,322 @@
+"""The RSU app as a process: bus, time protocol, camera and controller in; V2X frames out. The thin shell.
+
+Everything that decides what is sent and when lives in `RsuCore` (simulated
+time, no I/O); this module wires it to the world:
+
+1. check the configuration, load the detector (and warm it up) and the
+   station's credentials: any problem is a `ConfigError` (exit 2);
+2. open the bus (`bridges.timesync.participant.bus_from_env`) and, when the
+   scenario has a controller link, open it and send the first poll;
+3. join the master; the join reply gives the run's mode and latency policy,
+   the geodetic origin, the Unix time of simulation time 0, the intersection
+   and its signal heads;
+4. lockstep: per tick, the frames due (waiting, bounded, for a frame that is
+   due), the controller answers that arrived, `core.step(t)`, publish, ack;
+   realtime: the same on the simulation time read off the master's clock;
+5. at the end (the master ends the run, or SIGTERM): the JSON summary on stdout.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import secrets
+import signal
+import sys
+import time
+import traceback
+
+import numpy as np
+
+from bridges.geo import GeoOrigin
+from bridges.security import PSID_SPAT_MAP, PSID_SURROGATE_BSM
+from bridges.timesync.errors import JoinTimeout, MasterLost, Refused, TimeSyncError
+from bridges.timesync.participant import Participant, bus_from_env
+from bridges.v2x import EPOCH, tx_key
+from rsu_app.bsm_stage import BsmStage
+from rsu_app.camera import CameraIngest
+from rsu_app.config import ConfigError, Settings
+from rsu_app.controller_link import ControllerLink, serial_env
+from rsu_app.core import RsuCore
+from rsu_app.envelope import Envelope
+from rsu_app.health import Health, clean, percentiles_ms
+from rsu_app.intersection_map import intersection_geometry
+from rsu_app.perception_stage import DetectionZone, PerceptionStage
+from rsu_app.spat_stage import MapStage, SpatStage
+from rsu_app.timing import LatencyModel
+
+log = logging.getLogger("rsu_app")
+
+EXIT_OK, EXIT_ERROR, EXIT_CONFIG, EXIT_REFUSED, EXIT_NO_MASTER, EXIT_MASTER_LOST = 0, 1, 2, 3, 4, 5
+DEFAULT_SIGNAL_GROUPS = [2, 4, 6, 8]
+
+
+class Terminated(Exception):
+    """SIGTERM: finish with the summary."""
+
+
+def make_rsu_detector(settings: Settings):
+    """The configured detector, warmed up; ConfigError naming detector.* when it cannot be built."""
+    from rsu_app.perception import DetectorError, make_detector
+
+    d = settings.detector
+    try:
+        import cv2
+
+        cv2.setNumThreads(d.threads)
+    except ImportError:  # OpenCV is a dependency; only the classical backend needs it for sure
+        pass
+    if d.backend == "classical":
+        options = {"background": d.background} if d.background else {}
+    else:
+        options = {"threads": d.threads, "score_threshold": d.score_threshold}
+        if d.weights:
+            options["weights"] = d.weights
+    try:
+        detector = make_detector(d.backend, **options)
+        detector.detect(np.zeros((48, 64, 3), np.uint8))  # first inference builds the graph: not in a frame's time
+    except DetectorError as exc:
+        key = "detector.weights" if d.weights and "weights" in str(exc) else "detector.backend"
+        raise ConfigError([(key, str(exc))]) from None
+    return detector
+
+
+def session_salt(station: str, seed: int | None, lockstep: bool) -> bytes:
+    """The per-session salt of the temporary ids: from the seed (lockstep default 0: runs repeat), else random."""
+    if seed is None and not lockstep:
+        return secrets.token_bytes(16)
+    return hashlib.sha256(f"v2i-rsu-salt:{station}:{seed or 0}".encode()).digest()[:16]
+
+
+class RsuApp:
+    def __init__(self, settings: Settings, environ=os.environ):
+        self.s = settings
+        self.environ = environ
+        self.name = settings.name or "rsu"
+        self.station = settings.station or self.name
+        self.serial_url = settings.spat.url or environ.get(serial_env(settings.spat.serial)) or None
+        psids = [PSID_SURROGATE_BSM] if settings.camera.names else []
+        if self.serial_url or settings.map.enabled:
+            psids.append(PSID_SPAT_MAP)
+        self.envelope = Envelope.load(settings.security.mode, settings.security.pki_dir,
+                                      settings.security.credential or self.station, psids,
+                                      settings.security.certificate_interval_s)
+        self.detector = make_rsu_detector(settings) if settings.camera.names else None
+        self.bus = self.part = self.ingest = self.link = self.core = None
+        self.welcome = None
+        self.t_sim = float("nan")
+        self.ticks = 0
+        self.published = 0
+        self.publish_errors = 0
+        self.notes: list[str] = []
+        self.ended = None
+        self.exit_reason = ""
+
+    # -- set-up once joined ---------------------------------------------------------------------------
+    def _build_core(self, world: dict) -> RsuCore:
+        from rsu_app.perception.tracker import Tracker, TrackerConfig
+
+        w, s = self.welcome, self.s
+        origin = self.part.origin
+        if origin is None:
+            origin = GeoOrigin()
+            self.notes.append("the master sent no geodetic origin: using bridges.geo's default")
+        epoch = world.get(EPOCH)
+        if epoch is None:
+            epoch = time.time()
+            self.notes.append("the master sent no epoch_unix_s: simulation time 0 = this app's start")
+        self.origin, self.epoch = origin, float(epoch)
+        lockstep = w.mode == "lockstep"
+        self.latency = LatencyModel(w.mode, w.latency_policy, w.latencies, self.s.inference_s())
+        self.salt = session_salt(self.station, s.seed, lockstep)
+        perception = bsm = spat = map_stage = None
+        if self.detector is not None:
+            t = s.tracker
+            tracker = Tracker(TrackerConfig(accel_std=t.accel_std, meas_std=t.meas_std, gate=t.gate,
+                                            confirm_hits=t.confirm_hits, confirm_window=t.confirm_window,
+                                            max_missed=t.max_missed, motion=t.motion))
+            zone = DetectionZone(s.perception.max_range_m, world.get("intersection"), s.perception.on_road_only,
+                                 s.perception.road_margin_m)
+            perception = PerceptionStage(self.detector, tracker, zone, s.detector.score_threshold,
+                                         s.perception.merge_radius_m, s.perception.border_px)
+            bsm = BsmStage(self.station, origin, epoch, self.salt, self.envelope, self.latency)
+        if self.serial_url:
+            groups = s.spat.signal_groups or sorted({int(h["signal_group"]) for h in world.get("signals") or ()
+                                                     if "signal_group" in h}) or DEFAULT_SIGNAL_GROUPS
+            spat = SpatStage(self.station, epoch, self.envelope, self.latency, intersection_id=s.spat.intersection_id,
+                             signal_groups=groups, baud=s.spat.baud, max_age_s=s.spat.max_age_s)
+        if s.map.enabled:
+            try:
+                geometry = intersection_geometry(world, origin, s.spat.intersection_id, s.map.revision,
+                                                 s.map.stop_line_offset_m)
+                map_stage = MapStage(self.station, epoch, self.envelope, self.latency, geometry, s.map.revision)
+            except ValueError as exc:
+                self.notes.append(f"no MAP: {exc}")
+                log.info("no MAP: %s", exc)
+        t0 = self.part.tick.t if self.part.tick is not None else 0.0
+        return RsuCore(self.latency, perception, bsm, spat, map_stage, t0=t0, bsm_rate_hz=s.timing.bsm_rate_hz,
+                       spat_rate_hz=s.spat.rate_hz, map_rate_hz=s.map.rate_hz, realtime=not lockstep)
+
+    # -- running ------------------------------------------------------------------------------------------
+    def run(self) -> int:
+        s = self.s
+        try:
+            self.bus = bus_from_env(self.name, transport=s.bus.transport, prefix=s.bus.prefix,
+                                    connect=",".join(s.bus.connect) or None, environ=self.environ)
+        except (TimeSyncError, ValueError, OSError) as exc:
+            print(f"rsu_app: bus: {exc}", file=sys.stderr)
+            return EXIT_CONFIG
+        except Exception as exc:  # TransportError (unknown option, port taken...)
+            print(f"rsu_app: bus: cannot open it: {exc}", file=sys.stderr)
+            return EXIT_CONFIG
+        code = EXIT_OK
+        previous = signal.signal(signal.SIGTERM, self._on_sigterm)
+        try:
+            if self.detector is not None:
+                self.ingest = CameraIngest(self.bus, s.camera.names, s.camera.rate_hz, s.camera.wait_s)
+            if self.serial_url:
+                self.link = ControllerLink(self.serial_url, s.spat.controller, s.spat.baud, s.spat.poll,
+                                           s.spat.answer_timeout_s)
+                self.link.open()
+            self.part = Participant(self.bus, self.name, s.role, publishes=[tx_key(self.station)])
+            self.welcome = self.part.join(timeout=s.bus.join_timeout_s)
+            if self.link is not None:
+                self.link.start()
+            self.core = self._build_core(self.part.world)
+            self.health = Health(self, s.health.stats_every_s)
+            if self.welcome.mode == "lockstep":
+                self._lockstep()
+            else:
+                self._realtime()
+            self.ended = self.part.ended.status if self.part.ended else None
+            self.exit_reason = f"the run ended ({self.ended})"
+        except Refused as exc:
+            print(f"rsu_app: {exc}", file=sys.stderr)
+            code, self.exit_reason = EXIT_REFUSED, f"refused: {exc.reason}"
+        except JoinTimeout as exc:
+            print(f"rsu_app: {exc}", file=sys.stderr)
+            code, self.exit_reason = EXIT_NO_MASTER, "no welcome from the master"
+        except MasterLost as exc:
+            print(f"rsu_app: {exc}", file=sys.stderr)
+            code, self.exit_reason = EXIT_MASTER_LOST, str(exc)
+        except (Terminated, KeyboardInterrupt):
+            self.exit_reason = "terminated by signal"
+        except Exception as exc:  # a bug of ours: say so with the traceback, still summarise
+            traceback.print_exc()
+            code, self.exit_reason = EXIT_ERROR, f"internal error: {type(exc).__name__}: {exc}"
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+            summary = self.summary()
+            self._close()
+            print(__import__("json").dumps(clean(summary)), flush=True)
+        return code
+
+    def _on_sigterm(self, signum, frame):
+        raise Terminated()
+
+    def _lockstep(self) -> None:
+        for tick in self.part.ticks():
+            c0 = time.perf_counter()
+            self.t_sim = tick.t
+            frames = self.ingest.collect(tick.t, wait=True) if self.ingest is not None else []
+            statuses = [(a.status, a.wire_bytes) for a in self.link.collect()] if self.link is not None else []
+            self._publish(self.core.step(tick.t, frames, statuses))
+            self.part.ack(tick, time.perf_counter() - c0)
+            self.ticks += 1
+            self.health.maybe_report()
+
+    def _realtime(self) -> None:
+        while True:
+            tick = self.part.next_tick(timeout=0.02)
+            if tick is None and self.part.ended is not None:
+                return
+            try:
+                now = self.part.sim_time_now()
+            except TimeSyncError:
+                continue  # no time mapping from the master yet
+            self.t_sim = now
+            frames = self.ingest.newest_only(self.ingest.collect(float("inf"), wait=False)) if self.ingest else []
+            statuses = [(a.status, a.wire_bytes) for a in self.link.collect()] if self.link is not None else []
+            self._publish(self.core.step(now, frames, statuses))
+            self.ticks += tick is not None
+            self.health.maybe_report()
+
+    def _publish(self, transmissions) -> None:
+        for tx in transmissions:
+            try:
+                self.bus.publish(tx.key, tx.payload, tx.t_sim, stamps=tx.stamps)
+                self.published += 1
+            except Exception as exc:  # a closed or broken bus: count, keep the run going
+                self.publish_errors += 1
+                log.warning("could not publish on %s: %s", tx.key, exc)
+
+    def _close(self) -> None:
+        for thing in (self.link, self.ingest, self.part):
+            if thing is not None:
+                try:
+                    thing.close()
+                except Exception as exc:
+                    log.debug("closing %r: %s", thing, exc)
+        if self.bus is not None:
+            try:
+                self.bus.close()
+            except Exception as exc:
+                log.debug("closing the bus: %s", exc)
+
+    # -- health --------------------------------------------------------------------------------------------
+    def snapshot(self) -> dict:
+        core = self.core
+        p = core.perception if core else None
+        b = core.bsm if core else None
+        stage2 = [] if b is None else [e + g for e, g in zip(b.encode_s, b.sign_s)]
+        return {
+            "name": self.name, "station": self.station, "t_sim": self.t_sim,
+            "camera": self.ingest.stats() if self.ingest else {"received": 0, "bad": 0, "late": 0},
+            "frames_dropped_busy": core.counters.frames_dropped_busy if core else 0,
+            "detections": p.detections if p else 0,
+            "confirmed_tracks": len([t for t in p.tracker.tracks if t.confirmed]) if p else 0,
+            "bsm_sent": b.sent if b else 0,
+            "spat_sent": core.spat.sent if core and core.spat else 0,
+            "map_sent": core.map.sent if core and core.map else 0,
+            "stage1": {"compute_ms": percentiles_ms(p.compute_s if p else []),
+                       "charged_ms": percentiles_ms(core.counters.stage1_charged_s if core else [])},
+            "stage2": {"compute_ms": percentiles_ms(stage2)},
+        }
+
+    def summary(self) -> dict:
+        out = {"app": "rsu_app", "name": self.name, "station": self.station, "exit": self.exit_reason,
+               "end": self.ended, "ticks": self.ticks, "published": self.published,
+               "publish_errors": self.publish_errors, "notes": self.notes}
+        if self.welcome is not None:
+            out.update(mode=self.welcome.mode, latency_policy=self.welcome.latency_policy)
+        if self.core is None:
+            return out
+        core, snap = self.core, self.snapshot()
+        out.update(snap)
+        out["epoch_unix_s"] = self.epoch
+        out["origin"] = self.origin.to_dict()
+        out["latency"] = self.latency.describe()
+        out["hardware"] = self.s.timing.hardware
+        out["frames"] = {"processed": core.counters.frames - core.counters.frames_dropped_busy,
+                         "dropped_busy": core.counters.frames_dropped_busy,
+                         "refused": core.counters.frames_refused}
+        p, b = core.perception, core.bsm
+        if p is not None:
+            out["detector"] = {"backend": self.s.detector.backend, "threads": self.s.detector.threads,
+                               "score_threshold": self.s.detector.score_threshold}
+            out["tracker"] = {"confirmed_ever": len(core.tracks_seen), "late_updates": p.late_updates,
+                              "rejected_detections": dict(p.rejected), "detector_errors": p.detector_errors}
+        if b is not None:
+            out["bsm_by_track"] = {b.bsm_id(tid): n for tid, n in sorted(b.sent_by_track.items())}
+        if core.spat is not None:
+            sp = core.spat
+            out["spat"] = {"sent": sp.sent, "statuses": sp.statuses, "suppressed_stale": sp.suppressed_stale,
+                           "signal_groups": sp.signal_groups}
+        if self.link is not None:
+            out["controller_link"] = self.link.stats()
+        if core.map is not None:
+            out["map"] = {"sent": core.map.sent, "lanes": len(core.map.geometry.lanes)}
+        out["bus"] = self.bus.stats() if self.bus is not None else None
+        if self.part is not None:
+            out["time_protocol_errors"] = dict(self.part.errors)
+        return out

@@ -1,0 +1,153 @@
+"""The RSU in simulated time: a small discrete-event core, no bus, no threads (tested in-process).
+
+`RsuCore.step(t, frames, statuses)` is called once per tick of the master
+(lockstep) or per loop turn (realtime) with the camera frames and controller
+statuses that arrived by t, and returns the frames to transmit. Inside, every
+happening is an event at its own simulation time, processed in time order up
+to t, so what the RSU sends and when depends only on simulation times and
+data stamped <= t (lockstep + `fixed` latencies repeat bit for bit):
+
+    FRAME  at the frame's time: if the camera's detector is free (BusyGate),
+           detect + project now, and schedule READY at frame time + stage-1
+           latency (the detector is busy until then); else drop the frame.
+    READY  the tracker learns the detections (at the frame's time). The first
+           READY starts the BSM clock.
+    BSM    every 1/bsm_rate_hz from the first READY: one BSM per confirmed track,
+           predicted to the slot's time, then encode + sign (stage 2).
+    STATUS a controller status arrived.
+    SPAT / MAP  at their rates from the run's start.
+
+At equal times READY comes before STATUS, FRAME and the slots, so a slot sees
+every detection ready by its time and a frame's projection sees the tracks
+known at its time.
+"""
+from __future__ import annotations
+
+import heapq
+import itertools
+from collections import deque
+from dataclasses import dataclass, field
+
+from rsu_app.bsm_stage import BsmStage, Transmission
+from rsu_app.camera import EPS, BusyGate
+from rsu_app.perception_stage import FrameResult, PerceptionStage
+from rsu_app.timing import DETECT, LatencyModel
+
+READY, STATUS, FRAME, BSM, SPAT, MAP = range(6)
+
+
+@dataclass
+class CoreCounters:
+    frames: int = 0
+    frames_dropped_busy: int = 0
+    frames_refused: int = 0
+    bsm_slots: int = 0
+    stage1_charged_s: deque = field(default_factory=lambda: deque(maxlen=20000))  # simulated s per frame
+
+
+class RsuCore:
+    def __init__(self, latency: LatencyModel, perception: PerceptionStage | None = None,
+                 bsm: BsmStage | None = None, spat=None, map_stage=None, *, t0: float = 0.0,
+                 bsm_rate_hz: float = 10.0, spat_rate_hz: float = 10.0, map_rate_hz: float = 1.0,
+                 realtime: bool = False):
+        self.latency, self.perception, self.bsm, self.spat, self.map = latency, perception, bsm, spat, map_stage
+        self.realtime = realtime
+        self.bsm_period = 1.0 / bsm_rate_hz
+        self.gates: dict[str, BusyGate] = {}
+        self.counters = CoreCounters()
+        self._events: list = []
+        self._order = itertools.count()
+        self._bsm_start: float | None = None
+        self._pending_ready: dict[float, list[FrameResult]] = {}
+        self.t = float("-inf")  # events up to here are done
+        self.tracks_seen: set[int] = set()
+        if spat is not None:
+            self._push(t0, SPAT, (t0, 1.0 / spat_rate_hz, 0))
+        if map_stage is not None:
+            self._push(t0, MAP, (t0, 1.0 / map_rate_hz, 0))
+
+    def _push(self, t: float, kind: int, payload) -> None:
+        heapq.heappush(self._events, (t, kind, next(self._order), payload))
+
+    # -- the one entry point ---------------------------------------------------------------------------
+    def step(self, t: float, frames=(), statuses=()) -> list[Transmission]:
+        """Everything up to simulation time t. `frames`: camera frames of time <= t (realtime: processed
+        now); `statuses`: (status, wire_bytes) answers of the controller that arrived by t."""
+        for status, wire_bytes in statuses:
+            self._push(t, STATUS, (status, wire_bytes))
+        for frame in frames:
+            when = max(frame.t, t) if self.realtime else min(max(frame.t, self.t), t)  # never before done work
+            self._push(when, FRAME, frame)
+        out: list[Transmission] = []
+        while self._events and self._events[0][0] <= t + EPS:
+            when, kind, _, payload = heapq.heappop(self._events)
+            base = max(when, t) if self.realtime else when  # realtime: late work happens now
+            if kind == READY:
+                self._ready(when, payload)
+            elif kind == STATUS:
+                self.spat.on_status(payload[0], payload[1], when) if self.spat is not None else None
+            elif kind == FRAME:
+                self._frame(when, payload)
+            elif kind == BSM:
+                start, n = payload
+                self.counters.bsm_slots += 1
+                out += self._bsm_slot(base)
+                self._push(start + (n + 1) * self.bsm_period, BSM, (start, n + 1))
+            elif kind in (SPAT, MAP):
+                start, period, n = payload
+                stage = self.spat if kind == SPAT else self.map
+                tx = stage.send(base)
+                if tx is not None:
+                    out.append(tx)
+                self._push(start + (n + 1) * period, kind, (start, period, n + 1))
+        self.t = max(self.t, t)
+        return out
+
+    # -- stage 1 ------------------------------------------------------------------------------------------
+    def _frame(self, when: float, frame) -> None:
+        self.counters.frames += 1
+        if self.perception is None:
+            return
+        gate = self.gates.setdefault(frame.camera, BusyGate())
+        if not gate.offer(when):
+            self.counters.frames_dropped_busy += 1
+            return
+        result = self.perception.process(frame, when)
+        if result is None:
+            self.counters.frames_refused += 1
+            return
+        latency = self.latency.stage(DETECT, result.compute_s)
+        gate.occupy(when, latency)
+        result.detect_start, result.detect_end = when, when + latency
+        self.counters.stage1_charged_s.append(latency)
+        ready = when + latency
+        # frames of one instant whose detections are ready together update the tracker once
+        batch = self._pending_ready.get(ready)
+        if batch is None:
+            self._pending_ready[ready] = [result]
+            self._push(ready, READY, ready)
+        else:
+            batch.append(result)
+
+    def _ready(self, when: float, key: float) -> None:
+        results = self._pending_ready.pop(key, [])
+        if not results:
+            return
+        by_time: dict[float, list[FrameResult]] = {}
+        for r in results:
+            by_time.setdefault(r.t, []).append(r)
+        for _, group in sorted(by_time.items()):
+            self.perception.apply(group)
+        if self._bsm_start is None and self.bsm is not None:
+            self._bsm_start = when
+            self._push(when, BSM, (when, 0))
+
+    # -- stage 2 ------------------------------------------------------------------------------------------
+    def _bsm_slot(self, t: float) -> list[Transmission]:
+        tracker = self.perception.tracker
+        if tracker.t is None:
+            return []
+        states = self.perception.broadcastable(tracker.predict(max(t, tracker.t)))
+        self.tracks_seen.update(s.id for s in states)
+        sequential = self.latency.policy != "fixed"
+        return self.bsm.send(states, t, self.perception.track_stamps, sequential)

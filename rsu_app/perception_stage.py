@@ -1,0 +1,226 @@
+"""Stage 1: a camera frame -> vehicles on the ground -> tracks, with the times the chain needs.
+
+`PerceptionStage.process(frame)` runs the detector on the frame, keeps the
+boxes above the score threshold, places each on the ground through the
+frame's camera model (`geo.box_to_ground`, at the heading of the nearest known
+track when there is one: a tighter and cheaper fit), and drops ground points
+outside the detection zone (beyond `max_range_m`, or off the roads of the
+intersection). It returns a `FrameResult` and leaves the tracker alone: the
+tracker learns of a frame's detections only when they are *ready* in simulated
+time (`apply`), so a BSM sent before then cannot know them.
+
+Two rules keep the tracker from inventing vehicles (every false track is a
+ghost BSM a vehicle may brake for): detections of one frame closer than
+`merge_radius_m` on the ground are one vehicle (the detector sometimes boxes
+the front and the whole of a long vehicle), the best-scored kept; and a box cut
+by the image border (within `border_px`), whose ground point is the least
+reliable, may update a track near it but never start one.
+
+A confirmed track whose predicted position has left every camera's view (or
+the detection zone) is not broadcast (`broadcastable`): nothing can confirm
+it any more, and coasting on a straight line after a vehicle turned out of
+sight is how a real track becomes a ghost.
+
+`apply(result)` folds the detections into the tracker at the frame's time and
+remembers, per track, the stamps of the last frame that saw it: the BSMs of a
+track carry those (FRAME, DETECT_START, DETECT_END).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bridges.geo import GeoError
+from rsu_app.perception.detector import Detection, DetectorError
+from rsu_app.perception.geo import CameraModel, box_to_ground, rough_ground_point
+from rsu_app.perception.tracker import GroundDetection, Tracker, TrackerError, TrackState
+
+log = logging.getLogger(__name__)
+HEADING_RADIUS = 3.0  # m: a track this close to a detection's rough ground point lends it its heading
+
+
+@dataclass
+class FrameResult:
+    camera: str
+    frame_id: int
+    t: float                      # the frame's simulation time (FRAME)
+    detections: list[GroundDetection]
+    boxes: int                    # detector boxes above the threshold
+    compute_s: float              # wall seconds: detect + project
+    detect_start: float = 0.0     # simulation times, set by the core
+    detect_end: float = 0.0
+    rejected: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class TrackStamps:
+    frame: float
+    detect_start: float
+    detect_end: float
+
+
+class DetectionZone:
+    """Where a ground point may be a vehicle: near the camera and (when the intersection is known) on a road."""
+
+    def __init__(self, max_range_m: float, intersection: dict | None, on_road_only: bool, margin_m: float):
+        self.max_range_m = max_range_m
+        self.half_road = None
+        self.arm = None
+        if on_road_only and intersection:
+            try:
+                self.half_road = float(intersection["road_width"]) / 2 + margin_m
+                self.arm = float(intersection["arm_length"])
+            except (KeyError, TypeError, ValueError):
+                log.warning("the master's intersection description %r has no road_width/arm_length: every ground "
+                            "point counts as on the road", intersection)
+
+    def reason_to_reject(self, x: float, y: float, camera_xy) -> str | None:
+        if math.hypot(x - camera_xy[0], y - camera_xy[1]) > self.max_range_m:
+            return "beyond max_range_m"
+        if self.half_road is not None:
+            on_x_road = abs(y) <= self.half_road and abs(x) <= self.arm
+            on_y_road = abs(x) <= self.half_road and abs(y) <= self.arm
+            if not (on_x_road or on_y_road):
+                return "off the road"
+        return None
+
+
+class PerceptionStage:
+    def __init__(self, detector, tracker: Tracker, zone: DetectionZone, score_threshold: float,
+                 merge_radius_m: float = 2.5, border_px: float = 2.0):
+        self.detector, self.tracker, self.zone = detector, tracker, zone
+        self.score_threshold = score_threshold
+        self.merge_radius_m, self.border_px = merge_radius_m, border_px
+        self.track_stamps: dict[int, TrackStamps] = {}
+        self.detections = 0
+        self.rejected: dict[str, int] = {}
+        self.detector_errors = 0
+        self.late_updates = 0
+        self.compute_s: deque[float] = deque(maxlen=20000)  # wall seconds per processed frame (detect + project)
+        self.views: dict[str, tuple[CameraModel, int, int]] = {}  # camera -> (model, width, height), last seen
+        self.suppressed_out_of_view = 0
+
+    def _ground(self, det: Detection, camera: CameraModel, prior: list[TrackState]) -> tuple[float, float]:
+        rx, ry = rough_ground_point(det.box, camera, det.label)
+        near = [s for s in prior if s.heading is not None and math.hypot(s.x - rx, s.y - ry) < HEADING_RADIUS + 2.0]
+        if near:
+            best = min(near, key=lambda s: math.hypot(s.x - rx, s.y - ry))
+            gx, gy = box_to_ground(det.box, camera, det.label, heading=best.heading)
+        else:
+            gx, gy = box_to_ground(det.box, camera, det.label)
+        return float(gx), float(gy)
+
+    def process(self, frame, t_now: float) -> FrameResult | None:
+        """Detect and project one frame (the tracker's prior is its state at `t_now`); None for a frame the
+        detector refuses (counted)."""
+        c0 = time.perf_counter()
+        try:
+            boxes = [d for d in self.detector.detect(frame.rgb) if d.score >= self.score_threshold]
+        except DetectorError as exc:
+            self.detector_errors += 1
+            log.warning("camera %s frame %d: the detector refused it: %s", frame.camera, frame.frame_id, exc)
+            return None
+        try:
+            camera = CameraModel(frame.K, frame.R_wc, frame.position)
+        except GeoError as exc:
+            self.detector_errors += 1
+            log.warning("camera %s frame %d: unusable camera model: %s", frame.camera, frame.frame_id, exc)
+            return None
+        prior = self.tracker.predict(max(t_now, self.tracker.t)) if self.tracker.t is not None else []
+        known = self.tracker.predict(max(t_now, self.tracker.t), include_tentative=True) if prior or \
+            self.tracker.tracks else []
+        height, width = frame.rgb.shape[:2]
+        self.views[frame.camera] = (camera, width, height)
+        ground, rejected = [], {}
+
+        def reject(why: str) -> None:
+            rejected[why] = rejected.get(why, 0) + 1
+
+        for det in sorted(boxes, key=lambda d: -d.score):
+            try:
+                gx, gy = self._ground(det, camera, prior)
+            except (GeoError, ValueError) as exc:
+                reject("no ground point")
+                log.debug("frame %d: box %s: %s", frame.frame_id, det.box, exc)
+                continue
+            why = self.zone.reason_to_reject(gx, gy, camera.position[:2])
+            if why:
+                reject(why)
+                continue
+            if any(math.hypot(gx - g.x, gy - g.y) < self.merge_radius_m for g in ground):
+                reject("duplicate of a better box")
+                continue
+            u0, v0, u1, v1 = det.box
+            cut = min(u0, v0, width - u1, height - v1) <= self.border_px
+            if cut and not any(math.hypot(gx - s.x, gy - s.y) < HEADING_RADIUS + 2.0 for s in known):
+                reject("cut by the image border, no track near")
+                continue
+            ground.append(GroundDetection(gx, gy, det.label, float(det.score)))
+        for k, v in rejected.items():
+            self.rejected[k] = self.rejected.get(k, 0) + v
+        compute = time.perf_counter() - c0
+        self.compute_s.append(compute)
+        return FrameResult(frame.camera, frame.frame_id, float(frame.t), ground, len(boxes), compute,
+                           rejected=rejected)
+
+    def in_view(self, x: float, y: float, height_m: float = 0.75) -> bool:
+        """Whether a ground point (at a vehicle's mid height) projects inside some camera's image."""
+        for camera, width, height in self.views.values():
+            uv, depth = camera.project([[x, y, height_m]])
+            u, v = uv[0]
+            if depth[0] > 0.5 and 0 <= u < width and 0 <= v < height:
+                return True
+        return False
+
+    def broadcastable(self, states: list[TrackState]) -> list[TrackState]:
+        """The confirmed tracks worth a BSM: still in a camera's view and in the detection zone."""
+        out = []
+        for s in states:
+            views_known = bool(self.views)
+            zone_ok = not views_known or any(
+                self.zone.reason_to_reject(s.x, s.y, cam.position[:2]) is None for cam, _, _ in self.views.values())
+            if views_known and not (zone_ok and self.in_view(s.x, s.y)):
+                self.suppressed_out_of_view += 1
+                continue
+            out.append(s)
+        return out
+
+    def apply(self, results: list[FrameResult]) -> float:
+        """Fold the detections of frames of one instant into the tracker; returns the wall seconds it took."""
+        c0 = time.perf_counter()
+        t = results[0].t
+        if self.tracker.t is not None and t < self.tracker.t:
+            self.late_updates += 1  # frames of several cameras with different latencies: keep time monotonic
+            t = self.tracker.t
+        dets = [d for r in results for d in r.detections]
+        try:
+            states = self.tracker.update(t, dets)
+        except TrackerError as exc:
+            log.warning("tracker refused the detections of t = %.3f: %s", t, exc)
+            return time.perf_counter() - c0
+        self.detections += len(dets)
+        latest = max(results, key=lambda r: r.detect_end)
+        for s in states:
+            if s.missed == 0:
+                self.track_stamps[s.id] = TrackStamps(latest.t, latest.detect_start, latest.detect_end)
+        alive = {tr.id for tr in self.tracker.tracks}
+        for tid in [k for k in self.track_stamps if k not in alive]:
+            del self.track_stamps[tid]
+        return time.perf_counter() - c0
+
+
+def covariance_ellipse(cov: np.ndarray) -> tuple[float, float, float]:
+    """(semi-major, semi-minor (m, 1 sigma), orientation of the major axis (deg clockwise from north, 0..180))
+    of a 2x2 position covariance in (east, north)."""
+    c = np.asarray(cov, float)[:2, :2]
+    c = (c + c.T) / 2
+    w, v = np.linalg.eigh(c)
+    w = np.clip(w, 0.0, None)
+    major = v[:, 1]
+    orientation = math.degrees(math.atan2(major[0], major[1])) % 180.0
+    return float(math.sqrt(w[1])), float(math.sqrt(w[0])), orientation

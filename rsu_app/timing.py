@@ -1,0 +1,67 @@
+"""How much simulated time each stage of the RSU costs: the run's latency policy, or a hardware profile.
+
+Stage names (what a scenario's `[participants.NAME] latencies = {...}` sets
+under the `fixed` policy): ``detect`` (stage 1: frame -> objects ready:
+detected, projected to the ground, tracked), ``encode`` (J2735 UPER) and
+``sign`` (1609.2). Stage 2 of the seed paper is encode + sign (+ the send,
+which costs no simulated time here: the air adds the radio's own latency).
+
+* lockstep, ``fixed``: the configured value, whatever the computer did, so a
+  run repeats bit for bit; a stage the scenario leaves out costs 0 (logged once).
+* lockstep, ``measured``: the wall-clock compute time of the stage.
+* realtime: the wall-clock compute time scaled by the real-time factor
+  (simulated time *is* the wall clock then).
+* a hardware profile (``--hardware``, ``--inference-s``) replaces stage 1 in
+  every mode by a fixed inference time per frame, so one run can ask "would
+  this RSU computer be fast enough?" (the seed paper's CPU at 0.27 FPS, FPGA at
+  10 FPS, GPU at 30 FPS: ANCHORS I7). Frames that arrive while the detector is
+  busy in simulated time are dropped (`camera.BusyGate`).
+"""
+from __future__ import annotations
+
+import logging
+
+log = logging.getLogger(__name__)
+
+DETECT, ENCODE, SIGN = "detect", "encode", "sign"
+STAGE_NAMES = (DETECT, ENCODE, SIGN)
+
+
+class LatencyModel:
+    def __init__(self, mode: str, policy: str, latencies: dict[str, float] | None = None,
+                 inference_s: float | None = None, rtf: float = 1.0):
+        if mode not in ("lockstep", "realtime"):
+            raise ValueError(f"mode must be lockstep or realtime, got {mode!r}")
+        if mode == "lockstep" and policy not in ("fixed", "measured"):
+            raise ValueError(f"latency policy must be fixed or measured, got {policy!r}")
+        self.mode, self.policy = mode, policy if mode == "lockstep" else "realtime"
+        self.latencies = {k: float(v) for k, v in (latencies or {}).items()}
+        self.inference_s = inference_s
+        self.rtf = float(rtf) if rtf and rtf > 0 else 1.0
+        self.missing: set[str] = set()
+
+    def describe(self) -> dict:
+        out = {"mode": self.mode, "policy": self.policy}
+        if self.policy == "fixed":
+            out["latencies_s"] = {s: self.latencies.get(s, 0.0) for s in STAGE_NAMES}
+            if self.missing:
+                out["missing_stages"] = sorted(self.missing)
+        if self.inference_s is not None:
+            out["inference_s"] = self.inference_s
+        return out
+
+    def stage(self, name: str, compute_s: float) -> float:
+        """Simulated seconds charged for stage `name` that took `compute_s` wall seconds."""
+        if name == DETECT and self.inference_s is not None:
+            return self.inference_s
+        if self.policy == "fixed":
+            if name not in self.latencies:
+                if name not in self.missing:
+                    self.missing.add(name)
+                    log.warning("no fixed latency for stage %r in the scenario (latencies = { %s = ... } in its "
+                                "[participants] table): it costs 0 simulated seconds", name, name)
+                return 0.0
+            return self.latencies[name]
+        if self.policy == "measured":
+            return max(0.0, compute_s)
+        return max(0.0, compute_s) * self.rtf  # realtime: the wall clock, in simulated seconds

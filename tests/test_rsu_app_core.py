@@ -1,0 +1,309 @@
+"""The RSU app's pure core, in process: simulated-time stages, busy-drop, BSM content, SPaT and MAP.
+
+The detector here is an oracle: each synthetic frame carries the true vehicle
+poses, and the oracle returns the boxes of their 3D boxes projected through the
+case study's camera model, so the chain from box to BSM is exercised exactly
+and deterministically, without rendering. The process tests
+(test_rsu_app_process.py) run the real detector on rendered frames.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from bridges import ab3418
+from bridges.geo import GeoOrigin
+from bridges.j2735.bsm import Bsm
+from bridges.j2735.map import MapData
+from bridges.j2735.spat import Spat
+from bridges.security import open_unsecured
+from bridges.v2x import DETECT_END, DETECT_START, ENCODE, FRAME, SEND, SIGN, stamp_ns, stamp_s
+from master.world.camera import Camera
+from master.world.layout import CameraSpec
+from rsu_app.bsm_stage import BsmStage, sec_mark_ms
+from rsu_app.config import HARDWARE_PROFILES
+from rsu_app.core import RsuCore
+from rsu_app.envelope import Envelope
+from rsu_app.intersection_map import intersection_geometry
+from rsu_app.perception.detector import Detection
+from rsu_app.perception.geo import VEHICLE_SIZE, _box_corners
+from rsu_app.perception.tracker import Tracker, TrackerConfig
+from rsu_app.perception_stage import DetectionZone, PerceptionStage, covariance_ellipse
+from rsu_app.spat_stage import MapStage, SpatStage
+from rsu_app.timing import LatencyModel
+
+CAM = Camera(CameraSpec("rsu_cam", 6.5, 6.5, 6.0, yaw=225.0, pitch=-14.0, width=640, height=480, fov_deg=100.0),
+             None)
+INTERSECTION = {"road_width": 7.0, "lane_width": 3.5, "arm_length": 120.0, "sidewalk_width": 2.0}
+EPOCH = 1_790_000_000.25
+ORIGIN = GeoOrigin()
+
+
+@dataclass
+class Vehicle:
+    x0: float
+    y0: float
+    yaw: float
+    v: float
+    label: str = "car"
+    until: float = math.inf  # the oracle stops seeing it after this time
+
+    def at(self, t):
+        return self.x0 + self.v * t * math.cos(self.yaw), self.y0 + self.v * t * math.sin(self.yaw)
+
+
+CAV = Vehicle(1.75, -45.0, math.pi / 2, 8.333)
+EV = Vehicle(-50.0, -1.75, 0.0, 16.667, "emergency")
+
+
+class Pixels:
+    """Stands in for a frame's image: the oracle reads the poses from it."""
+
+    shape = (480, 640, 3)
+
+    def __init__(self, t, vehicles):
+        self.t, self.vehicles = t, vehicles
+
+
+@dataclass
+class FakeFrame:
+    camera: str
+    frame_id: int
+    t: float
+    rgb: Pixels
+    K = CAM.K
+    R_wc = CAM.R_wc
+    position = CAM.position
+
+
+class Oracle:
+    name = "oracle"
+
+    def __init__(self):
+        self.calls = 0
+
+    def detect(self, rgb: Pixels):
+        self.calls += 1
+        out = []
+        for v in rgb.vehicles:
+            if rgb.t > v.until:
+                continue
+            L, W, H, clearance = VEHICLE_SIZE[v.label]
+            x, y = v.at(rgb.t)
+            uv, depth = CAM.project(_box_corners(x, y, v.yaw, L, W, H, clearance))
+            u0, v0 = uv.min(axis=0)
+            u1, v1 = uv.max(axis=0)
+            if depth.min() <= 0 or u1 < 0 or v1 < 0 or u0 > 639 or v0 > 479:
+                continue
+            out.append(Detection((max(u0, 0.0), max(v0, 0.0), min(u1, 640.0), min(v1, 480.0)), v.label, 0.9))
+        return out
+
+
+def make_core(policy="fixed", latencies=None, inference_s=None, vehicles=(CAV, EV), hits=3, max_missed=5,
+              spat=None, map_stage=None):
+    latency = LatencyModel("lockstep", policy, latencies if latencies is not None else
+                           {"detect": 0.05, "encode": 0.001, "sign": 0.002}, inference_s)
+    oracle = Oracle()
+    perception = PerceptionStage(oracle, Tracker(TrackerConfig(confirm_hits=hits, max_missed=max_missed)),
+                                 DetectionZone(60.0, INTERSECTION, True, 1.5), 0.5)
+    bsm = BsmStage("rsu", ORIGIN, EPOCH, b"seed-salt", Envelope(None), latency)
+    core = RsuCore(latency, perception, bsm, spat, map_stage)
+    return core, oracle, list(vehicles)
+
+
+def run(core, vehicles, stop=4.0, step=0.01, rate=10.0):
+    """Drive the core like the master: a tick every step, a frame every 1/rate, seen at its tick."""
+    out, frame_id = [], 0
+    for k in range(int(round(stop / step)) + 1):
+        t = round(k * step, 9)
+        frames = []
+        if abs(t * rate - round(t * rate)) < 1e-6:
+            frames.append(FakeFrame("rsu_cam", frame_id, t, Pixels(t, vehicles)))
+            frame_id += 1
+        out += core.step(t, frames)
+    return out
+
+
+def bsms(transmissions):
+    out = []
+    for tx in transmissions:
+        if tx.kind == "bsm":
+            out.append((tx, Bsm.decode(open_unsecured(tx.payload))))
+    return out
+
+
+def test_bsms_follow_the_vehicles_at_ten_hertz_per_track_with_stable_ids():
+    core, _, vehicles = make_core()
+    sent = bsms(run(core, vehicles, stop=6.0))
+    by_id: dict[bytes, list] = {}
+    for tx, b in sent:
+        by_id.setdefault(b.temporary_id, []).append((tx, b))
+    assert len(by_id) == 2  # one stable temporary id per vehicle
+    for msgs in by_id.values():
+        times = [stamp_s(tx.stamps[SEND]) for tx, _ in msgs]
+        gaps = np.diff(times)
+        assert np.allclose(gaps, 0.1, atol=1e-6), gaps  # J2945/1: 10 Hz (ANCHORS I1)
+        assert [b.msg_count for _, b in msgs] == [i % 128 for i in range(len(msgs))]
+        emergency = {b.emergency is not None for _, b in msgs}
+        x, y, _ = ORIGIN.to_local(msgs[-1][1].latitude, msgs[-1][1].longitude, msgs[-1][1].elevation)
+        t = stamp_s(msgs[-1][0].stamps[ENCODE]) - 0.001  # the slot's time
+        veh = min((CAV, EV), key=lambda v: math.hypot(x - v.at(t)[0], y - v.at(t)[1]))
+        assert math.hypot(x - veh.at(t)[0], y - veh.at(t)[1]) < 0.3
+        assert emergency == {veh.label == "emergency"}
+        b = msgs[-1][1]
+        assert (b.length, b.width) == pytest.approx(VEHICLE_SIZE[veh.label][:2], abs=0.01)
+        assert b.speed == pytest.approx(veh.v, abs=0.3)
+        assert b.heading == pytest.approx((90 - math.degrees(veh.yaw)) % 360, abs=1.0)
+        assert 0 < b.semi_major < 1.0 and b.semi_minor <= b.semi_major
+
+
+def test_sec_mark_and_stamps_follow_the_latency_policy():
+    core, _, vehicles = make_core(latencies={"detect": 0.3, "encode": 0.004, "sign": 0.006})
+    sent = bsms(run(core, vehicles, stop=2.0))
+    tx, b = sent[0]
+    s = tx.stamps
+    # the detections of frame t are ready at t + 0.3: the tracker (and the BSM) only know them then
+    assert s[DETECT_START] == s[FRAME] and s[DETECT_END] - s[FRAME] == stamp_ns(0.3)
+    assert s[ENCODE] - s[DETECT_END] == stamp_ns(0.004) and s[SIGN] - s[ENCODE] == stamp_ns(0.006)
+    assert s[SEND] == s[SIGN] and tx.t_sim == pytest.approx(stamp_s(s[SEND]))
+    slot = stamp_s(s[ENCODE]) - 0.004
+    assert b.sec_mark_ms == sec_mark_ms(EPOCH + slot)
+    # busy until 0.3 s after each frame it takes, the detector takes frames 0, 0.3, 0.6 (0.1, 0.2, 0.4, 0.5
+    # are dropped); confirmed by the third, the track's first BSM goes in the slot of its ready time
+    assert stamp_s(s[FRAME]) == pytest.approx(0.6) and slot == pytest.approx(0.9)
+    assert core.counters.frames_dropped_busy == 21 - 7  # of frames 0.0 .. 2.0 it takes 0, 0.3, ... 1.8
+    for tx, _ in sent:  # every BSM of a slot describes frames ready by the slot
+        assert tx.stamps[DETECT_END] <= tx.stamps[ENCODE]
+
+
+def test_fixed_policy_repeats_bit_for_bit():
+    a = run(*make_core()[::2], stop=3.0)
+    b = run(*make_core()[::2], stop=3.0)
+    assert len(a) == len(b) > 20
+    assert [(x.key, x.payload, x.t_sim, x.stamps) for x in a] == [(x.key, x.payload, x.t_sim, x.stamps) for x in b]
+
+
+@pytest.mark.parametrize("profile,processed,dropped", [
+    ("cpu-i7", 3, 78),          # 1/0.27 s per frame: frames 0, 3.8 and 7.6 of 81
+    ("fpga-zynq7020", 81, 0),   # 0.1 s: each frame arrives as the previous one is done
+    ("gpu-gtx1650", 81, 0),
+])
+def test_a_hardware_profile_drops_the_frames_that_arrive_while_busy(profile, processed, dropped):
+    inference = HARDWARE_PROFILES[profile][0]
+    core, oracle, vehicles = make_core(inference_s=inference, hits=1)
+    sent = bsms(run(core, vehicles, stop=8.0))
+    assert oracle.calls == processed and core.counters.frames_dropped_busy == dropped
+    assert all(v == pytest.approx(inference) for v in core.counters.stage1_charged_s)
+    first = min(stamp_s(tx.stamps[SEND]) for tx, _ in sent)
+    assert first == pytest.approx(inference + 0.003, abs=1e-6)  # frame 0 + inference + encode + sign
+
+
+def test_measured_policy_charges_the_real_compute_time():
+    core, _, vehicles = make_core(policy="measured", latencies={})
+    sent = bsms(run(core, vehicles, stop=1.0))
+    tx, _ = sent[0]
+    detect = stamp_s(tx.stamps[DETECT_END] - tx.stamps[DETECT_START])
+    assert 0 < detect < 1.0 and detect in [pytest.approx(c, abs=1e-6) for c in core.counters.stage1_charged_s]
+    assert tx.stamps[SIGN] > tx.stamps[ENCODE] > tx.stamps[DETECT_END]
+
+
+def test_tracks_that_age_out_stop_being_broadcast():
+    gone = Vehicle(1.75, -45.0, math.pi / 2, 8.333, until=2.0)
+    core, _, _ = make_core(vehicles=[gone], max_missed=5)
+    sent = bsms(run(core, [gone], stop=4.0))
+    last = max(stamp_s(tx.stamps[ENCODE]) for tx, _ in sent)
+    # last detection at frame 2.0; the track coasts through 5 frames without one, then is dropped
+    assert 2.0 < last <= 2.0 + 0.6 + 0.05 + 1e-6
+    assert not core.perception.tracker.tracks
+
+
+def test_position_accuracy_is_the_covariance_ellipse():
+    major, minor, orientation = covariance_ellipse(np.array([[4.0, 0.0], [0.0, 1.0]]))
+    assert (major, minor, orientation) == pytest.approx((2.0, 1.0, 90.0))  # the long axis points east
+    major, minor, orientation = covariance_ellipse(np.array([[1.0, 0.0], [0.0, 9.0]]))
+    assert (major, minor) == pytest.approx((3.0, 1.0)) and orientation in (pytest.approx(0.0), pytest.approx(180.0))
+
+
+# -- SPaT and MAP -----------------------------------------------------------------------------------------
+def long_status(greens=0, yellows=0, phase_a=0, phase_b=0, ttc_a=(None, None), ttc_b=(None, None), status=0):
+    return ab3418.LongStatus8(status=status, pattern=1, greens=greens, yellows=yellows, phase_a=phase_a,
+                              phase_b=phase_b, ttc_a_min=ab3418.tenths(ttc_a[0]), ttc_a_max=ab3418.tenths(ttc_a[1]),
+                              ttc_b_min=ab3418.tenths(ttc_b[0]), ttc_b_max=ab3418.tenths(ttc_b[1]))
+
+
+def spat_stage(max_age_s=0.5):
+    latency = LatencyModel("lockstep", "fixed", {"encode": 0.001, "sign": 0.001})
+    return SpatStage("rsu", EPOCH, Envelope(None), latency, intersection_id=7, signal_groups=[2, 4, 6, 8],
+                     baud=9600, max_age_s=max_age_s)
+
+
+def test_spat_reports_the_controller_states_and_its_times_to_change():
+    sp = spat_stage()
+    status = long_status(greens=0b00100010, yellows=0, phase_a=2, phase_b=6, ttc_a=(12.5, 20.0), ttc_b=(12.5, 20.0))
+    sp.on_status(status, wire_bytes=40, t_rx=10.0)
+    tx = sp.send(10.05)
+    spat = Spat.decode(open_unsecured(tx.payload))
+    states = {m.signal_group: m.state for m in spat.intersections[0].movements}
+    assert states == {2: "protected-Movement-Allowed", 6: "protected-Movement-Allowed", 4: "stop-And-Remain",
+                      8: "stop-And-Remain"}
+    m2 = next(m for m in spat.intersections[0].movements if m.signal_group == 2)
+    # the answer left the controller 40 bytes * 10 bits / 9600 baud before it was complete
+    t_status = 10.0 - 40 * 10 / 9600
+    assert m2.min_end_s == pytest.approx(round((EPOCH + t_status + 12.5) % 3600, 1), abs=0.051)
+    assert m2.max_end_s == pytest.approx(round((EPOCH + t_status + 20.0) % 3600, 1), abs=0.051)
+    assert next(m for m in spat.intersections[0].movements if m.signal_group == 4).min_end_s is None
+    assert spat.intersections[0].intersection_id == 7
+    sp.on_status(long_status(greens=0, yellows=0b00100010, phase_a=2, phase_b=6), 40, 10.2)
+    yellow = Spat.decode(open_unsecured(sp.send(10.25).payload))
+    assert {m.signal_group: m.state for m in yellow.intersections[0].movements}[2] == "protected-clearance"
+    assert yellow.intersections[0].revision == 1  # the states changed
+
+
+def test_no_stale_spat_from_a_silent_controller():
+    sp = spat_stage(max_age_s=0.5)
+    assert sp.send(1.0) is None  # nothing heard yet
+    sp.on_status(long_status(greens=0b10), 40, 1.0)
+    assert sp.send(1.3) is not None
+    assert sp.send(1.6) is None and sp.suppressed_stale == 1
+
+
+def test_spat_and_map_slots_in_the_core():
+    world = {"intersection": INTERSECTION,
+             "signals": [{"name": "nb", "x": 5, "y": 5, "yaw": 270.0, "signal_group": 2},
+                         {"name": "eb", "x": 5, "y": -5, "yaw": 180.0, "signal_group": 8}]}
+    latency = LatencyModel("lockstep", "fixed", {"encode": 0.001, "sign": 0.001})
+    geometry = intersection_geometry(world, ORIGIN, 7, 1, 1.0)
+    core = RsuCore(latency, spat=spat_stage(), map_stage=MapStage("rsu", EPOCH, Envelope(None), latency, geometry, 1))
+    out = []
+    for k in range(300):
+        t = round(k * 0.01, 9)
+        statuses = [(long_status(greens=0b10), 40)] if k % 7 == 0 else []
+        out += core.step(t, statuses=statuses)
+    kinds = [tx.kind for tx in out]
+    assert kinds.count("map") == 3 and kinds.count("spat") == 30  # 1 Hz and 10 Hz over 3 s
+    m = MapData.decode(open_unsecured(next(tx for tx in out if tx.kind == "map").payload))
+    assert m.intersections[0].ref_latitude == pytest.approx(ORIGIN.lat0)
+
+
+def test_map_of_the_case_study_intersection():
+    world = {"intersection": INTERSECTION,
+             "signals": [{"name": "nb", "x": 5, "y": 5, "yaw": 270.0, "signal_group": 2},
+                         {"name": "eb", "x": 5, "y": -5, "yaw": 180.0, "signal_group": 8}]}
+    g = intersection_geometry(world, ORIGIN, 1, 1, 1.0)
+    assert len(g.lanes) == 8 and g.lane_width == 3.5
+    north_bound = g.lane(11)  # approach 1: from the south arm, on the right (east) half of the road
+    assert north_bound.ingress and north_bound.stop_line == pytest.approx((1.75, -4.5))
+    assert north_bound.signal_group() == 2
+    east_bound = g.lane(21)
+    assert east_bound.stop_line == pytest.approx((-4.5, -1.75)) and east_bound.signal_group() == 8
+    assert g.lane(31).signal_group() is None  # no head faces the southbound drivers
+    assert {c.lane for c in north_bound.connections} == {35, 25, 45}  # straight north, left west, right east
+    egress_north = g.lane(35)
+    assert egress_north.egress and [(n.x, n.y) for n in egress_north.nodes][0] == pytest.approx((1.75, 3.5))
+    lane, to_stop = g.ingress_lane_at(1.75, -40.0, heading_deg=0.0)
+    assert lane.lane_id == 11 and to_stop == pytest.approx(35.5)
+    with pytest.raises(ValueError, match="no intersection"):
+        intersection_geometry({}, ORIGIN, 1, 1, 1.0)
