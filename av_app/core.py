@@ -187,6 +187,8 @@ class AvCore:
         self.last_plan, self.last_objects = plan, objects
         h = self.health
         h.objects_by_source = Counter("static" if o.static else o.source for o in objects)
+        for source in h.objects_by_source:
+            h.mark(f"source:{source}", t)
         if plan.decision != h.decision:
             h.mark(f"decision:{plan.decision}", t)
         h.decision, h.cause = plan.decision, plan.cause

@@ -4,9 +4,10 @@ The speed profile over the ego path's stations is the classic forward-backward
 pass: each station's limit is the cruise speed or the curve speed
 sqrt(lateral_accel_max / |curvature|), zero at and beyond a stop point; a
 backward pass lets the vehicle slow down in time (at `decel_curve` before
-curves; before a stop at `decel_comfort`, or harder when comfort no longer
+curves; before a stop at `decel_stop`, or harder when that no longer
 suffices, up to the vehicle's `max_decel`); a forward pass from the current
-speed limits acceleration.
+speed limits acceleration. A plan that brakes harder than `decel_comfort`
+says so: its decision is "brake_hard".
 
 Yielding (per object, from the collision estimator): against the *free*
 profile (route limits only), an object whose post-encroachment time at the
@@ -149,9 +150,8 @@ class Planner:
             first = min(active, key=lambda st: st.s)
             decision = {"yield": "yield", "red": "stop_red", "route_end": "route_end"}[first.reason]
             cause = first.cause
-            if first.s - s0 < 0.05 or v0 * v0 / max(2 * (first.s - s0), 1e-6) > cfg.control.decel_comfort + 1e-6:
-                if v0 > 0.3 and decision != "route_end":
-                    decision = "brake_hard"
+            if accel < -cfg.control.decel_comfort and decision != "route_end":
+                decision = "brake_hard"  # harder than comfortable: it had to
         if v0 < 0.3 and target < 0.3:
             accel = -cfg.control.hold_decel  # standing: hold the brake
             if decision == "cruise":
