@@ -64,7 +64,7 @@ class AvCore:
         self.tracker = LidarTracker(cfg.perception)
         self.signals = SignalState(cfg, obu.origin)
         self.health = Health()
-        self._v2x: dict[str, list[tuple[float, V2xObject]]] = {}
+        self._v2x: dict[str, list[list]] = {}  # object id -> [[usable from (FUSE), V2xObject], ...]
         self._lidar: list[tuple[float, list[LidarObject]]] = []
         self._lidar_now: list[LidarObject] = []
         self._pending: list[_Pending] = []
@@ -110,19 +110,20 @@ class AvCore:
             return None
         t_verify = self.clock.charge("verify", t_rx, acc.wall_s["verify"])
         t_decode = self.clock.charge("decode", t_verify, acc.wall_s["decode"])
+        # fuse: the object joins the list the planner fuses from (association itself runs at plan time)
         w0 = time.perf_counter()
-        fuse_ready = None
+        entry = [math.inf, acc.object]
         if acc.object is not None:
-            fuse_ready = acc.object
-        elif acc.spat is not None:
-            self.signals.take_spat(acc.spat, t_rx)
-        elif acc.map_message is not None:
-            self.signals.take_map(acc.map_message, t_rx)
+            self._v2x.setdefault(acc.object.id, []).append(entry)
         wall_fuse = time.perf_counter() - w0
         t_fuse = self.clock.charge("fuse", t_decode, wall_fuse)
-        if fuse_ready is not None:
-            self._v2x.setdefault(fuse_ready.id, []).append((t_fuse, fuse_ready))
-            self.health.mark(f"v2x:{fuse_ready.id}", t_fuse)
+        entry[0] = t_fuse
+        if acc.object is not None:
+            self.health.mark(f"v2x:{acc.object.id}", t_fuse)
+        elif acc.spat is not None:
+            self.signals.take_spat(acc.spat, t_fuse)
+        elif acc.map is not None:
+            self.signals.take_map(acc.map, t_fuse)
         up = {k: int(v) for k, v in (stamps or {}).items()}
         up.setdefault(AIR_ARRIVAL, stamp_ns(t_arrival))
         up.update({RECEIVE: stamp_ns(t_rx), VERIFY: stamp_ns(t_verify), DECODE: stamp_ns(t_decode),
@@ -247,6 +248,8 @@ class AvCore:
                        lateral=r(p.lateral), target=r(p.target_speed))
             out["conflicts"] = [[c.object_id, None if c.ttc is None else r(c.ttc), None if c.pet is None else r(c.pet),
                                  None if c.station_in is None else r(c.station_in)] for c in p.conflicts]
+        if self.signals.last:
+            out["signal"] = dict(self.signals.last)
         out["objects"] = [[o.id, o.source, r(o.x), r(o.y), r(o.yaw), r(o.speed), r(o.length), r(o.width), r(o.age)]
                           for o in self.last_objects if not o.static]
         return out

@@ -23,11 +23,11 @@ import math
 import time
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any
 
 from bridges.geo import GeoOrigin
 from bridges.j2735 import J2735Error, default_codec
 from bridges.j2735.bsm import Bsm
+from bridges.j2735.map import MapData
 from bridges.j2735.spat import Spat
 from bridges.security import (PSID_BSM, PSID_SPAT_MAP, PSID_SURROGATE_BSM, VerificationError, Verifier,
                               time64_us)
@@ -69,7 +69,7 @@ class Accepted:
     station: str
     object: V2xObject | None = None
     spat: Spat | None = None
-    map_message: dict[str, Any] | None = None
+    map: MapData | None = None
     object_id: str = ""
     wall_s: dict[str, float] = field(default_factory=dict)  # measured compute per stage
 
@@ -159,8 +159,11 @@ class Obu:
                 raise Rejected("undecodable", f"SPaT: {exc}") from None
             out.object_id = ",".join(str(i.intersection_id) for i in out.spat.intersections)
         else:
-            out.map_message = frame.message
-            out.object_id = "map"
+            try:
+                out.map = MapData.from_asn1(frame.message)
+            except (J2735Error, KeyError, TypeError, ValueError) as exc:
+                raise Rejected("undecodable", f"MAP: {exc}") from None
+            out.object_id = ",".join(str(i.intersection_id) for i in out.map.intersections)
         w2 = time.perf_counter()
         out.wall_s = {"verify": w1 - w0, "decode": w2 - w1}
         return out
