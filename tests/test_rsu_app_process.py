@@ -10,7 +10,7 @@ garbage camera frames on the bus. Ground truth: the run's timeseries.csv.
 """
 from __future__ import annotations
 
-import math
+import json
 import uuid
 from collections import defaultdict
 
@@ -22,6 +22,7 @@ from bridges.headed_payload import pack
 from bridges.security import PSID_SPAT_MAP, PSID_SURROGATE_BSM, Verifier, load_certificate, time64_us
 from bridges.v2x import DETECT_END, DETECT_START, ENCODE, FRAME, SEND, SIGN, stamp_s
 
+from test_hil_netns import MASTER_IP, netns_pair  # noqa: F401  (the two-namespace fixture)
 from test_rsu_app_support import (CASE_STUDY, ROOT, Truth, app_summary, bridge_tables, decode_bsms, free_port,
                                   heading_error, make_pki, probe_table, rsu_table, run_with_probe)
 
@@ -191,3 +192,69 @@ def test_a_slow_computer_drops_frames_and_tells_of_the_ev_seconds_later(case_run
                    key=lambda b: b.t_tx)
     assert stamp_s(slow_bsm.stamps[FRAME]) == pytest.approx(3.8)
     assert truth.at("ev", slow_bsm.t)[0] - slow_bsm.x > 40.0
+
+
+# -- the same app on a box: another network namespace, joined over a veth link ------------------------------
+def _comparable(bsms):
+    """What must repeat bit for bit: times, stamps and every BSM field but secMark (the run's epoch differs)."""
+    import dataclasses
+
+    return [(b.t_tx, tuple(sorted(b.stamps.items())), dataclasses.replace(b.bsm, sec_mark_ms=None)) for b in bsms]
+
+
+def test_the_app_on_a_box_across_a_veth_link_sends_the_same_bsms(case_run, netns_pair, tmp_path):
+    """Master (with a probe) in one namespace, the RSU app in the other, as an RSU box on a cable; lockstep with
+    the fixed policy: the same BSMs as the app started by the master on loopback (same frames, same salt)."""
+    import subprocess
+    import sys
+
+    from test_rsu_app_support import load_probe_record
+
+    master_ns, box_ns, _ = netns_pair
+    make_pki(tmp_path / "keys", {"rsu": "0x7f,0x82"})
+    prefix, port = f"test/rsu-box-{uuid.uuid4().hex[:8]}", 17448
+    text = CASE_STUDY.read_text() + bridge_tables(prefix, port, listen_host=MASTER_IP) + probe_table() + \
+        rsu_table("rsu", command=False) + """
+[v2x]
+max_range_m = 500.0
+[v2x.stations.rsu]
+position = [6.5, 6.5, 6.0]
+[v2x.stations.probe]
+position = [-6.5, 6.5, 1.5]
+"""
+    scenario = tmp_path / "box.toml"
+    scenario.write_text(text)
+    endpoint, probe_endpoint = f"tcp/{MASTER_IP}:{port}", f"tcp/{MASTER_IP}:{port + 1}"
+    ns = lambda name: ["ip", "netns", "exec", name, sys.executable]  # noqa: E731
+    master = subprocess.Popen(ns(master_ns) + ["-m", "master.cli", "run", str(scenario), "--out",
+                                               str(tmp_path / "out"), "--quiet"],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path)
+    probe = subprocess.Popen(ns(master_ns) + [str(ROOT / "tests" / "test_rsu_app_support.py"), "probe", "--prefix",
+                                              prefix, "--connect", endpoint, "--listen", probe_endpoint,
+                                              "--out", str(tmp_path / "probe.json")],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path)
+    box = subprocess.Popen(ns(box_ns) + ["-m", "rsu_app", "--config", str(ROOT / "scenarios" / "apps" / "rsu.toml"),
+                                         "--pki-dir", "keys", "--bus", "zenoh", "--prefix", prefix, "--connect",
+                                         f"{endpoint},{probe_endpoint}", "--name", "rsu"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        master_out, _ = master.communicate(timeout=400)
+        probe_out, _ = probe.communicate(timeout=60)
+        box_out, box_err = box.communicate(timeout=60)
+    finally:
+        for proc in (master, probe, box):
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    assert master.returncode == 0, master_out
+    assert probe.returncode == 0 and box.returncode == 0, (probe_out, box_err[-3000:])
+    summary = json.loads(box_out.strip().splitlines()[-1])
+    meta = json.loads((tmp_path / "out" / "metadata.json").read_text())
+    assert meta["participants"]["members"]["rsu"]["host"]  # it joined from the box's namespace
+    sent, world = load_probe_record(tmp_path / "probe.json")
+    ca = load_certificate(tmp_path / "keys" / "v2i-scenario-ca.cert")
+    on_box, rejects = decode_bsms(sent, "rsu", world, Verifier([ca]))
+    assert not rejects and summary["frames"]["processed"] == 80
+    on_loopback, _ = decode_bsms(case_run["probe"].sent, "rsu", case_run["probe"].world, case_run["verifier"]())
+    assert len(on_box) == len(on_loopback) > 50
+    assert _comparable(on_box) == _comparable(on_loopback)

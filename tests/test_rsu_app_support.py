@@ -96,6 +96,7 @@ class Probe:
     prefix: str
     connect: str
     name: str = "probe"
+    listen: str | None = None  # an endpoint apps on other hosts connect to (zenoh peers do not route for others)
     sent: list[Sent] = field(default_factory=list)
     world: dict = field(default_factory=dict)
     ticks: int = 0
@@ -105,7 +106,8 @@ class Probe:
         from bridges.timesync.participant import Participant
         from bridges.transport import open_bus
 
-        self.bus = open_bus("zenoh", prefix=self.prefix, sender=self.name, connect=[self.connect])
+        extra = {"listen": [self.listen]} if self.listen else {}
+        self.bus = open_bus("zenoh", prefix=self.prefix, sender=self.name, connect=[self.connect], **extra)
         self._lock = threading.Lock()
         self._sub = self.bus.subscribe("v2x/tx/*", self._on_tx)
         self.part = Participant(self.bus, self.name, "probe")
@@ -132,6 +134,8 @@ class Probe:
 
     def join(self, timeout: float = 60.0) -> None:
         self._thread.join(timeout)
+        if self._thread.is_alive() and self.error is None:
+            self.error = TimeoutError(f"probe: the run did not end within {timeout} s")
         self.part.close()
         self._sub.close()
         self.bus.close()
@@ -279,3 +283,35 @@ def test_heading_error_compares_compass_and_world_angles():
     assert heading_error(90.0, 0.0) == 0.0                 # east
     assert abs(heading_error(359.0, math.pi / 2) - 1.0) < 1e-9
     assert abs(heading_error(180.0, 0.0) - 90.0) < 1e-9
+
+
+# -- a probe as its own process (a network namespace the test process is not in) -----------------------------
+def main(argv=None) -> int:
+    """python tests/test_rsu_app_support.py probe --prefix P --connect E --out FILE: record, then write JSON."""
+    import argparse
+
+    p = argparse.ArgumentParser()
+    p.add_argument("command", choices=["probe"])
+    p.add_argument("--prefix", required=True)
+    p.add_argument("--connect", required=True)
+    p.add_argument("--name", default="probe")
+    p.add_argument("--listen")
+    p.add_argument("--out", required=True)
+    args = p.parse_args(argv)
+    probe = Probe(args.prefix, args.connect, args.name, args.listen).start()
+    probe.join(timeout=600)
+    Path(args.out).write_text(json.dumps({
+        "world": probe.world, "error": repr(probe.error) if probe.error else None, "ticks": probe.ticks,
+        "sent": [{"key": s.key, "sender": s.sender, "t_sim": s.t_sim, "stamps": s.stamps, "payload": s.payload.hex()}
+                 for s in probe.sent]}))
+    return 0
+
+
+def load_probe_record(path: Path) -> tuple[list[Sent], dict]:
+    data = json.loads(Path(path).read_text())
+    return [Sent(s["key"], s["sender"], s["t_sim"], s["stamps"], bytes.fromhex(s["payload"])) for s in data["sent"]], \
+        data["world"]
+
+
+if __name__ == "__main__":
+    sys.exit(main())
