@@ -300,6 +300,7 @@ class RsuApp:
         out["frames"] = {"processed": core.counters.frames - core.counters.frames_dropped_busy,
                          "dropped_busy": core.counters.frames_dropped_busy,
                          "refused": core.counters.frames_refused}
+        out["slots_skipped_late"] = core.counters.slots_skipped
         p, b = core.perception, core.bsm
         if p is not None:
             out["detector"] = {"backend": self.s.detector.backend, "threads": self.s.detector.threads,

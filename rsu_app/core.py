@@ -42,6 +42,7 @@ class CoreCounters:
     frames_dropped_busy: int = 0
     frames_refused: int = 0
     bsm_slots: int = 0
+    slots_skipped: int = 0  # realtime: BSM/SPaT/MAP slots the loop was too late for
     stage1_charged_s: deque = field(default_factory=lambda: deque(maxlen=20000))  # simulated s per frame
 
 
@@ -92,16 +93,28 @@ class RsuCore:
                 start, n = payload
                 self.counters.bsm_slots += 1
                 out += self._bsm_slot(base)
-                self._push(start + (n + 1) * self.bsm_period, BSM, (start, n + 1))
+                n = self._next_slot(start, self.bsm_period, n, t)
+                self._push(start + n * self.bsm_period, BSM, (start, n))
             elif kind in (SPAT, MAP):
                 start, period, n = payload
                 stage = self.spat if kind == SPAT else self.map
                 tx = stage.send(base)
                 if tx is not None:
                     out.append(tx)
-                self._push(start + (n + 1) * period, kind, (start, period, n + 1))
+                n = self._next_slot(start, period, n, t)
+                self._push(start + n * period, kind, (start, period, n))
         self.t = max(self.t, t)
         return out
+
+    def _next_slot(self, start: float, period: float, n: int, t: float) -> int:
+        """The next slot's number. Realtime: a loop that fell behind skips the slots it missed (one late
+        message per kind, never a burst of stale ones); lockstep never falls behind."""
+        n += 1
+        if self.realtime and start + n * period <= t + EPS:
+            skip = int((t + EPS - start) / period) + 1 - n
+            self.counters.slots_skipped += skip
+            n += skip
+        return n
 
     # -- stage 1 ------------------------------------------------------------------------------------------
     def _frame(self, when: float, frame) -> None:

@@ -210,6 +210,21 @@ def test_measured_policy_charges_the_real_compute_time():
     assert tx.stamps[SIGN] > tx.stamps[ENCODE] > tx.stamps[DETECT_END]
 
 
+def test_realtime_a_late_loop_sends_one_late_bsm_per_track_not_a_burst():
+    latency = LatencyModel("realtime", "realtime", {}, None)
+    perception = PerceptionStage(Oracle(), Tracker(TrackerConfig(confirm_hits=1)),
+                                 DetectionZone(60.0, INTERSECTION, True, 1.5), 0.5)
+    core = RsuCore(latency, perception, BsmStage("rsu", ORIGIN, EPOCH, b"s", Envelope(None), latency), realtime=True)
+    # realtime charges the wall clock: the detections are ready a few ms after the frame
+    first = bsms(core.step(0.0, [FakeFrame("rsu_cam", 0, 0.0, Pixels(0.0, [CAV]))]) + core.step(0.05))
+    assert len(first) == 1
+    ready = stamp_s(first[0][0].stamps[DETECT_END])
+    assert 0 < ready <= 0.05
+    late = bsms(core.step(0.65))  # the loop comes back 0.6 s later: the slots in between are gone
+    assert len(late) == 1 and core.counters.slots_skipped == 5
+    assert late[0][1].sec_mark_ms == sec_mark_ms(EPOCH + 0.65)  # sent now, describing now
+
+
 def test_tracks_that_age_out_stop_being_broadcast():
     gone = Vehicle(1.75, -45.0, math.pi / 2, 8.333, until=2.0)
     core, _, _ = make_core(vehicles=[gone], max_missed=5)
