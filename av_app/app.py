@@ -189,7 +189,7 @@ class AvApp:
                     continue
                 core.on_lidar(scan.t, scan.points)
             elif kind == "v2x":
-                t_rx = self.part.sim_time_now() if realtime else None
+                t_rx = self._now(t_sim) if realtime else None
                 core.on_v2x(msg.payload, msg.t_sim, msg.stamps, t_receive=t_rx)
 
     def _send(self, echo: int):
@@ -327,20 +327,24 @@ class AvApp:
             last_t = t
             part.ack(tick, time.perf_counter() - w0)
 
+    def _now(self, fallback: float = 0.0) -> float:
+        """Simulation time now (realtime runs); before the master's first clock mapping, `fallback`."""
+        return self.part.sim_time_now() if self.part.mapping is not None else fallback
+
     def _realtime(self) -> None:
         part, core = self.part, self.core
+        t = 0.0
         while part.ended is None:
             part.next_tick(timeout=0.0)  # keeps the master-lost check; ticks carry nothing else here
             statuses = self.can.poll(timeout=0.005)
             self._feed(self._take(None), realtime=True)
             for st in statuses:
-                t = part.sim_time_now()
+                t = max(t, self._now(t))
                 core.on_status(t, st.status.speed, st.status.yaw_rate)
                 self._answer(t, st.status.counter)
-            if part.mapping is not None:
-                t = part.sim_time_now()
-                self._heartbeat(t)
-                self._stats(t)
+            t = max(t, self._now(t))
+            self._heartbeat(t)
+            self._stats(t)
 
     # -- the end ---------------------------------------------------------------------------------------------
     def close(self) -> dict[str, Any]:

@@ -20,6 +20,8 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from av_app.config import EgoSection
 
+LATE_OK_S = 0.2  # a measurement at most this much older than the filter is still used
+
 
 @dataclass(frozen=True)
 class EgoState:
@@ -101,7 +103,8 @@ class EgoFilter:
         self.fixes = 0
         self.statuses = 0
         self.last_fix_t: float | None = None
-        self.rejected = 0  # measurements refused (non-finite, older than the filter)
+        self.rejected = 0  # measurements refused (non-finite, much older than the filter)
+        self.late = 0  # measurements a little older than the filter, taken as of its time (realtime)
         points = MerweScaledSigmaPoints(5, alpha=0.5, beta=2.0, kappa=0.0, sqrt_method=_sqrt, subtract=_residual_x)
         self.ukf = UnscentedKalmanFilter(5, 4, 0.02, _h_gnss, _fx, points, sqrt_fn=_sqrt, x_mean_fn=_mean_x,
                                          residual_x=_residual_x)
@@ -128,8 +131,13 @@ class EgoFilter:
             return False
         dt = t - self.t
         if dt < -1e-9:
-            self.rejected += 1  # older than the state: dropped (lockstep never does this)
-            return False
+            # older than the state: a realtime run's fix may come in after a status stamped "now";
+            # a little late it corrects the present, much later it is dropped (lockstep never does this)
+            if dt < -LATE_OK_S:
+                self.rejected += 1
+                return False
+            self.late += 1
+            return True
         if dt > 1e-9:
             self.ukf.Q = self._Q(dt)
             self.ukf.predict(dt=dt)

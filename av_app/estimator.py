@@ -28,7 +28,7 @@ import numpy as np
 
 from av_app.config import PlannerSection, VehicleSection
 from av_app.fusion import FusedObject
-from av_app.geometry import corners, overlap, to_frame, wrap
+from av_app.geometry import overlap_boxes, to_frame, wrap
 from av_app.route import PathSamples
 
 
@@ -67,14 +67,17 @@ class CollisionEstimator:
         self.tau = np.arange(0.0, planner.horizon_s + 1e-9, planner.dt_s)
 
     # -- geometry -------------------------------------------------------------------------------------
-    def ego_boxes(self, path: PathSamples) -> tuple[np.ndarray, np.ndarray]:
-        """Footprints (n, 4, 2) of the ego at each path station (grown by the margin) and their centres."""
-        v, m = self.vehicle, self.cfg.margin_m
+    def ego_boxes(self, path: PathSamples) -> tuple[np.ndarray, ...]:
+        """The ego at each path station: footprint centres x, y, headings (its box grown by the margin and
+        swept half a station step before and after the station: half length, half width below)."""
+        v = self.vehicle
         off = v.length / 2 - v.rear_overhang
-        cx, cy = path.x + off * np.cos(path.yaw), path.y + off * np.sin(path.yaw)
-        # swept: each box also covers half a station step before and after its station
-        length = v.length + 2 * m + self.cfg.path_ds
-        return corners(cx, cy, path.yaw, length, v.width + 2 * m), np.column_stack([cx, cy])
+        return path.x + off * np.cos(path.yaw), path.y + off * np.sin(path.yaw), path.yaw
+
+    @property
+    def ego_half(self) -> tuple[float, float]:
+        v, m = self.vehicle, self.cfg.margin_m
+        return (v.length + 2 * m + self.cfg.path_ds) / 2, (v.width + 2 * m) / 2
 
     def predict(self, o: FusedObject) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, y, yaw) of the object's centre at each prediction time."""
@@ -97,33 +100,36 @@ class CollisionEstimator:
         return (same_way and front < -v.rear_overhang - self.cfg.ignore_behind_m
                 and abs(float(lat)) < (v.width + o.width) / 2 + 0.5)
 
-    def occupancy(self, o: FusedObject, ego: tuple[np.ndarray, np.ndarray]) -> Occupancy:
-        boxes, centres = ego
+    def occupancy(self, o: FusedObject, ego: tuple[np.ndarray, ...]) -> Occupancy:
+        ex, ey, eyaw = ego
         m = self.cfg.margin_m
-        ox, oy, oyaw = self.predict(o)
-        n_s, n_t = len(boxes), len(ox)
+        n_s = len(ex)
         a = np.full(n_s, np.inf)
         b = np.full(n_s, -np.inf)
+        standing = o.static or o.speed < self.cfg.stationary_speed
+        ox, oy, oyaw = self.predict(o)
+        tau = self.tau
+        if standing:  # one pose for the whole horizon
+            ox, oy, oyaw, tau = ox[:1], oy[:1], oyaw[:1], tau[:1]
         # swept: each predicted box also covers half a time step of motion before and after its sample
-        o_len = o.length + 2 * m + (0.0 if o.static or o.speed < self.cfg.stationary_speed
-                                    else o.speed * self.cfg.dt_s)
-        r_ego = 0.5 * math.hypot(self.vehicle.length + 2 * m + self.cfg.path_ds, self.vehicle.width + 2 * m)
-        r_obj = 0.5 * math.hypot(o_len, o.width + 2 * m)
-        # broad phase: bounding circles
-        if (ox.min() - r_obj > centres[:, 0].max() + r_ego or ox.max() + r_obj < centres[:, 0].min() - r_ego
-                or oy.min() - r_obj > centres[:, 1].max() + r_ego or oy.max() + r_obj < centres[:, 1].min() - r_ego):
+        o_hl = (o.length + 2 * m + (0.0 if standing else o.speed * self.cfg.dt_s)) / 2
+        o_hw = (o.width + 2 * m) / 2
+        e_hl, e_hw = self.ego_half
+        r = math.hypot(e_hl, e_hw) + math.hypot(o_hl, o_hw)
+        # broad phase: the object's sweep against the path's bounding box, then bounding circles
+        if (ox.min() - r > ex.max() or ox.max() + r < ex.min() or oy.min() - r > ey.max()
+                or oy.max() + r < ey.min()):
             return Occupancy(o, a, b)
-        d2 = (centres[:, 0:1] - ox[None]) ** 2 + (centres[:, 1:2] - oy[None]) ** 2
-        si, tj = np.nonzero(d2 <= (r_ego + r_obj) ** 2)
+        d2 = (ex[:, None] - ox[None]) ** 2 + (ey[:, None] - oy[None]) ** 2
+        si, tj = np.nonzero(d2 <= r * r)
         if len(si) == 0:
             return Occupancy(o, a, b)
-        obj_boxes = corners(ox, oy, oyaw, o_len, o.width + 2 * m)
-        hit = overlap(boxes[si], obj_boxes[tj])
+        hit = overlap_boxes(ex[si], ey[si], eyaw[si], e_hl, e_hw, ox[tj], oy[tj], oyaw[tj], o_hl, o_hw)
         si, tj = si[hit], tj[hit]
         if len(si):
-            np.minimum.at(a, si, self.tau[tj])
-            np.maximum.at(b, si, self.tau[tj])
-            if o.static or o.speed < self.cfg.stationary_speed:
+            np.minimum.at(a, si, tau[tj])
+            np.maximum.at(b, si, tau[tj])
+            if standing:
                 b[si] = np.inf  # a standing object stays beyond the horizon
         return Occupancy(o, a, b)
 

@@ -48,6 +48,24 @@ def overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return ~separated.any(-1)
 
 
+def overlap_boxes(ax, ay, ayaw, a_half_len, a_half_wid, bx, by, byaw, b_half_len, b_half_wid) -> np.ndarray:
+    """The separating-axis test on boxes given by centre, heading and half sizes (arrays broadcast); bool.
+
+    Same answer as `overlap` on their corners, with a few dot products per pair instead of projecting
+    eight corners on four axes: along each box's two axes the boxes are apart when the distance of
+    their centres exceeds the sum of their half extents on that axis.
+    """
+    dx, dy = np.subtract(bx, ax), np.subtract(by, ay)
+    ca, sa, cb, sb = np.cos(ayaw), np.sin(ayaw), np.cos(byaw), np.sin(byaw)
+    c = np.abs(ca * cb + sa * sb)  # |cos(b - a)|
+    s = np.abs(sa * cb - ca * sb)  # |sin(b - a)|
+    sep = np.abs(dx * ca + dy * sa) > a_half_len + b_half_len * c + b_half_wid * s
+    sep |= np.abs(-dx * sa + dy * ca) > a_half_wid + b_half_len * s + b_half_wid * c
+    sep |= np.abs(dx * cb + dy * sb) > b_half_len + a_half_len * c + a_half_wid * s
+    sep |= np.abs(-dx * sb + dy * cb) > b_half_wid + a_half_len * s + a_half_wid * c
+    return ~sep
+
+
 def min_area_rect(points: np.ndarray) -> tuple[float, float, float, float, float]:
     """(cx, cy, yaw, length, width) of the smallest rectangle around 2-D points; length >= width.
 

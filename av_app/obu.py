@@ -88,16 +88,23 @@ def unix_from_time64(us: int) -> float:
 
 def measurement_time(sec_mark_ms: int | None, t_arrival: float, epoch: float,
                      generation_us: int | None) -> float:
-    """Simulation time of a BSM's measurement: its secMark in the minute around the arrival."""
+    """Simulation time of a BSM's measurement: its secMark in the minute around the arrival.
+
+    secMark counts whole milliseconds of UTC, so the measurement time is known to 1 ms; it is taken
+    on the simulation's millisecond grid. Otherwise where the run's epoch falls within its millisecond
+    (the wall clock at the start) would move it by up to half a millisecond from run to run, and a
+    lockstep run would not repeat bit for bit.
+    """
     if sec_mark_ms is None or sec_mark_ms >= 60000:
-        if generation_us is not None:
-            return unix_from_time64(generation_us) - epoch
-        return t_arrival
-    u = unix_time(t_arrival, epoch)
-    minute = math.floor(u / 60.0) * 60.0
-    candidates = [minute + k * 60.0 + sec_mark_ms / 1000.0 for k in (-1, 0, 1)]
-    best = min(candidates, key=lambda c: abs(c - u))
-    return best - epoch
+        if generation_us is None:
+            return t_arrival
+        t = unix_from_time64(generation_us) - epoch
+    else:
+        u = unix_time(t_arrival, epoch)
+        minute = math.floor(u / 60.0) * 60.0
+        candidates = [minute + k * 60.0 + sec_mark_ms / 1000.0 for k in (-1, 0, 1)]
+        t = min(candidates, key=lambda c: abs(c - u)) - epoch
+    return round(t, 3)
 
 
 class Obu:

@@ -62,29 +62,25 @@ def profile(path: PathSamples, v0: float, cfg: AvConfig, stops: list[Stop]) -> n
     """Planned speed at each station of `path` (starting at the ego's station)."""
     ctl, veh, route = cfg.control, cfg.vehicle, cfg.route
     s = path.s
-    ds = np.diff(s, append=s[-1] + (s[1] - s[0] if len(s) > 1 else 1.0))
     with np.errstate(divide="ignore"):
         v_curve = np.sqrt(route.lateral_accel_max / np.maximum(np.abs(path.kappa), 1e-9))
     lim = np.minimum(route.cruise_speed, v_curve)
-    v = _backward(lim, ds, ctl.decel_curve)
+    v2 = _backward(lim * lim, s, ctl.decel_curve)
     for stop in stops:
         dist = stop.s - s[0]
         need = v0 * v0 / (2 * dist) if dist > 0.05 else math.inf
         decel = min(max(ctl.decel_stop, need), veh.max_decel)
-        cap = np.where(s >= stop.s, 0.0, np.sqrt(np.maximum(2 * decel * (stop.s - s), 0.0)))
-        v = np.minimum(v, cap)
-    out = np.empty_like(v)
-    out[0] = min(v0, v[0])
-    for i in range(1, len(v)):
-        out[i] = min(v[i], math.sqrt(out[i - 1] ** 2 + 2 * ctl.accel_comfort * ds[i - 1]))
-    return out
+        v2 = np.minimum(v2, np.where(s >= stop.s, 0.0, 2 * decel * np.maximum(stop.s - s, 0.0)))
+    # forward pass from the current speed: v_i^2 <= v_k^2 + 2 a (s_i - s_k) for every k <= i
+    v2[0] = min(v0 * v0, v2[0])
+    a2 = 2 * ctl.accel_comfort
+    return np.sqrt(np.minimum.accumulate(v2 - a2 * s) + a2 * s)
 
 
-def _backward(lim: np.ndarray, ds: np.ndarray, decel: float) -> np.ndarray:
-    v = lim.copy()
-    for i in range(len(v) - 2, -1, -1):
-        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2 * decel * ds[i]))
-    return v
+def _backward(v2: np.ndarray, s: np.ndarray, decel: float) -> np.ndarray:
+    """Squared speeds that can slow down to every later limit at `decel`: v_i^2 <= v_j^2 + 2 d (s_j - s_i)."""
+    d2 = 2 * decel
+    return np.minimum.accumulate((v2 + d2 * s)[::-1])[::-1] - d2 * s
 
 
 def timing(path: PathSamples, v: np.ndarray) -> np.ndarray:

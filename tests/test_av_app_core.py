@@ -110,6 +110,18 @@ def test_every_bad_frame_is_rejected_with_its_reason_and_counted(pki, attack, re
     assert obu.rejected[reason] == 1
 
 
+def test_measurement_time_does_not_depend_on_where_the_epoch_falls_in_its_millisecond():
+    """secMark is whole UTC milliseconds: with the run's epoch anywhere within a millisecond, a BSM measured
+    at simulation time t gives back t (lockstep runs repeat even though their epochs differ)."""
+    from av_app.obu import measurement_time
+
+    for frac in (0.0, 0.0001, 0.00049, 0.00051, 0.0009):
+        epoch = 1795000000.0 + frac
+        for t in (0.0, 1.23, 59.99, 61.5):
+            sec_mark = int(round((unix_time(t, epoch) % 60) * 1000)) % 60000
+            assert measurement_time(sec_mark, t + 0.0071, epoch, None) == pytest.approx(t, abs=1e-12)
+
+
 # -- the core: timing model and trace records -----------------------------------------------------------------
 def core_for(pki, policy="fixed", latencies=None, **tables):
     tables.setdefault("security", {"allow_unsecured": True})

@@ -84,12 +84,14 @@ class Run:
 
 
 def run_case(tmp_path_factory, keys, name: str, *, feeder: str | None, ev_x0: float = AV_EV_X0,
-             ev_parked: bool = False, stop: float = 10.0, inject=None) -> Run:
+             ev_parked: bool = False, stop: float = 10.0, inject=None, realtime: bool = False) -> Run:
     folder = tmp_path_factory.mktemp(f"av-{name}")
     sc = tomllib.loads(BASE.read_text())
     fmu = str(ROOT / "build" / "fmus" / "VehicleDynamics.fmu")
     sc["fmus"]["cav"]["fmu"] = sc["fmus"]["ev"]["fmu"] = fmu
     sc["time"]["stop"] = stop
+    if realtime:
+        sc["time"].update(mode="realtime", rtf=1.0, overrun="catch-up")
     sc["fmus"]["ev"]["parameters"]["x0"] = ev_x0
     if ev_parked:  # out of the way, standing: the ghost runs have no real emergency vehicle
         sc["fmus"]["ev"]["parameters"]["v0"] = 0.0
@@ -287,6 +289,22 @@ def test_fed_nothing_the_lidar_sees_the_ev_only_at_the_corner_and_the_cav_must_b
     assert set(av["objects_by_source"]) <= {"lidar", "static"}
 
 
+# -- realtime -------------------------------------------------------------------------------------------------------
+def test_realtime_run_the_app_answers_statuses_as_they_come(tmp_path_factory, keys, fmu_dir):
+    """Realtime (HIL) mode: no ticks to wait for; each AV_Status is answered when it arrives, stamped with
+    the master's simulation clock, and the gateway applies the latest command (sync = free)."""
+    run = run_case(tmp_path_factory, keys, "realtime", feeder=None, ev_x0=-119.0, ev_parked=True, stop=3.0,
+                   realtime=True)
+    av = run.av
+    assert av["exit_code"] == 0 and av["mode"] == "realtime" and av["errors"] == {}
+    assert av["latency"]["policy"] == "realtime"
+    assert av["counts"]["commands"] == av["counts"]["statuses"] >= 100
+    # the gateway took them all; how many it applied depends on how well this (shared) machine kept up
+    can_meta = run.meta["can"]
+    assert can_meta["sync"] == "free" and can_meta["commands_received"] >= 100 and can_meta["commands_applied"] >= 10
+    assert abs(run.col("cav.x") - 1.75).max() < 0.5 and run.col("cav.y")[-1] > -50.0 + 10.0  # on its lane
+
+
 # -- fed forged, replayed, untrusted BSMs of a ghost ------------------------------------------------------------------
 def test_attacks_are_rejected_by_reason_and_the_cav_does_not_brake(attacks):
     run = attacks
@@ -303,7 +321,7 @@ def test_attacks_are_rejected_by_reason_and_the_cav_does_not_brake(attacks):
     assert rejected.get("replayed", 0) >= 0.8 * sent["replayed_duplicate"]
     assert av["obu"]["accepted"]["bsm"] <= sent["beacon"]  # only the harmless beacon got through
     assert set(av["decisions"]) <= {"cruise"}  # never yielded, never braked for the ghost
-    t, v = run.col("time"), run.col("cav.v")
+    v = run.col("cav.v")
     v_turn = math.sqrt(2.0 * 6.0)
     assert v.min() > v_turn - 0.3  # it slowed for its turn only
 

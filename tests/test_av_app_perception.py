@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from av_app.config import PerceptionSection
-from av_app.geometry import corners, min_area_rect, overlap
+from av_app.geometry import corners, min_area_rect, overlap, overlap_boxes
 from av_app.perception import LidarTracker, cluster_points, crop, detect
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -79,7 +79,7 @@ def test_clusters_come_out_in_the_world_frame_through_the_ego_pose():
 
 
 def test_clusters_closer_than_the_tolerance_merge_and_farther_ones_do_not():
-    cfg = PerceptionSection(cluster_tolerance=0.7, voxel=0.1)
+    cfg = PerceptionSection(cluster_tolerance=0.7)
     a = box_surface(10.0, 0.0, 0.0, 4.0, 1.8, 1.4)
     near = box_surface(14.5, 0.0, 0.0, 4.0, 1.8, 1.4)  # 0.5 m gap: one cluster
     far = box_surface(15.0, 0.0, 0.0, 4.0, 1.8, 1.4)   # 1.0 m gap: two
@@ -98,6 +98,17 @@ def test_min_area_rect_of_a_rotated_rectangle():
     assert width == pytest.approx(1.0, abs=0.05)
     assert overlap(corners(0, 0, 0, 4, 2), corners(3.9, 0, 0.3, 4, 2))
     assert not overlap(corners(0, 0, 0, 4, 2), corners(6.1, 0, 0, 4, 2))
+
+
+def test_the_half_extent_box_test_agrees_with_the_corner_test():
+    rng = np.random.default_rng(11)
+    n = 20000
+    a = rng.uniform(-3, 3, (n, 2)), rng.uniform(-np.pi, np.pi, n), rng.uniform(0.5, 6, n), rng.uniform(0.5, 3, n)
+    b = rng.uniform(-3, 3, (n, 2)), rng.uniform(-np.pi, np.pi, n), rng.uniform(0.5, 6, n), rng.uniform(0.5, 3, n)
+    by_corners = overlap(corners(a[0][:, 0], a[0][:, 1], a[1], a[2], a[3]), corners(b[0][:, 0], b[0][:, 1], b[1], b[2], b[3]))
+    by_halves = overlap_boxes(a[0][:, 0], a[0][:, 1], a[1], a[2] / 2, a[3] / 2, b[0][:, 0], b[0][:, 1], b[1], b[2] / 2,
+                              b[3] / 2)
+    assert 0.2 < by_corners.mean() < 0.8 and np.array_equal(by_corners, by_halves)
 
 
 def test_a_moving_car_gets_a_track_with_its_velocity_and_the_wall_stays_static():
