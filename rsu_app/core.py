@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import logging
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -33,6 +34,7 @@ from rsu_app.camera import EPS, BusyGate
 from rsu_app.perception_stage import FrameResult, PerceptionStage
 from rsu_app.timing import DETECT, LatencyModel
 
+log = logging.getLogger(__name__)
 READY, STATUS, FRAME, BSM, SPAT, MAP = range(6)
 
 
@@ -124,6 +126,8 @@ class RsuCore:
         gate = self.gates.setdefault(frame.camera, BusyGate())
         if not gate.offer(when):
             self.counters.frames_dropped_busy += 1
+            log.debug("camera %s frame %d of t = %.3f dropped: the detector is busy until %.3f", frame.camera,
+                      frame.frame_id, frame.t, gate.busy_until)
             return
         result = self.perception.process(frame, when)
         if result is None:
