@@ -68,6 +68,7 @@ class AvCore:
         self._lidar: list[tuple[float, list[LidarObject]]] = []
         self._lidar_now: list[LidarObject] = []
         self._pending: list[_Pending] = []
+        self._speed: tuple[float, float] | None = None  # (t, speed) of the last AV_Status
         self.last_plan: Plan | None = None
         self.last_objects: list[FusedObject] = []
 
@@ -76,6 +77,8 @@ class AvCore:
         self.health.counts["statuses"] += 1
         if not self.ego.status(t, speed, yaw_rate):
             self.health.garbage["status"] += 1
+        elif math.isfinite(speed):
+            self._speed = (t, speed)  # the vehicle's own speed: what the longitudinal control tracks
 
     def on_gnss(self, fix: GnssFix) -> None:
         self.health.counts["gnss_fixes"] += 1
@@ -184,7 +187,9 @@ class AvCore:
             return None, Mode.MANUAL
         objects = self.objects(t)
         stops: list[Stop] = self.signals.stops(t, state, self.route, self.planner)
-        plan = self.planner.plan(t, state.pose, state.v, objects, stops)
+        # the speed for control: the vehicle's own (AV_Status), fresh; the filter's when there is none
+        v = self._speed[1] if self._speed is not None and t - self._speed[0] <= 0.1 else state.v
+        plan = self.planner.plan(t, state.pose, v, objects, stops)
         self.last_plan, self.last_objects = plan, objects
         h = self.health
         h.objects_by_source = Counter("static" if o.static else o.source for o in objects)

@@ -35,6 +35,7 @@ from av_app.lanes import LaneMap
 from av_app.route import PathSamples, Route, pure_pursuit
 
 HYSTERESIS_S = 0.5
+PREVIEW_S = 0.5  # the longitudinal controller follows the profile's slope over this much time ahead
 
 
 @dataclass(frozen=True)
@@ -160,7 +161,10 @@ class Planner:
         road load forward."""
         cfg = self.cfg
         ds = path.s[1] - path.s[0]
-        a = (v_plan[1] ** 2 - v0 ** 2) / (2 * ds)
+        # the profile's slope over the next half second: a small speed error is not corrected within
+        # a few centimetres (that would turn sensor noise into jerk); stops are braked for exactly below
+        k = int(min(len(path.s) - 1, max(1, round(max(ds, PREVIEW_S * v0) / ds))))
+        a = (v_plan[k] ** 2 - v0 ** 2) / (2 * (path.s[k] - path.s[0]))
         margin = cfg.planner.stop_margin_m
         for st in stops:
             d = st.s - path.s[0]
@@ -171,4 +175,4 @@ class Planner:
         a += cfg.control.speed_kp * min(v_plan[0] - v0, 0.0)  # only brakes: the profile starts at v0 otherwise
         road = cfg.vehicle.road_load_c0 + cfg.vehicle.road_load_c2 * v0 * v0 if v0 > 0.05 else 0.0
         accel = min(max(a + road, -cfg.vehicle.max_decel), cfg.vehicle.max_accel)
-        return float(accel), float(v_plan[1])
+        return float(accel), float(v_plan[k])
