@@ -18,6 +18,7 @@ time, no I/O); this module wires it to the world:
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import os
 import secrets
@@ -153,8 +154,7 @@ class RsuApp:
             except ValueError as exc:
                 self.notes.append(f"no MAP: {exc}")
                 log.info("no MAP: %s", exc)
-        t0 = self.part.tick.t if self.part.tick is not None else 0.0
-        return RsuCore(self.latency, perception, bsm, spat, map_stage, t0=t0, bsm_rate_hz=s.timing.bsm_rate_hz,
+        return RsuCore(self.latency, perception, bsm, spat, map_stage, bsm_rate_hz=s.timing.bsm_rate_hz,
                        spat_rate_hz=s.spat.rate_hz, map_rate_hz=s.map.rate_hz, realtime=not lockstep)
 
     # -- running ------------------------------------------------------------------------------------------
@@ -201,6 +201,11 @@ class RsuApp:
             code, self.exit_reason = EXIT_MASTER_LOST, str(exc)
         except (Terminated, KeyboardInterrupt):
             self.exit_reason = "terminated by signal"
+            if self.part is not None and self.part.welcome is not None and self.part.ended is None:
+                try:
+                    self.part.leave("terminated by signal")  # the master hears it now, not at its timeout
+                except Exception as exc:  # the bus may be gone
+                    log.debug("leave: %s", exc)
         except Exception as exc:  # a bug of ours: say so with the traceback, still summarise
             traceback.print_exc()
             code, self.exit_reason = EXIT_ERROR, f"internal error: {type(exc).__name__}: {exc}"
@@ -208,7 +213,7 @@ class RsuApp:
             signal.signal(signal.SIGTERM, previous)
             summary = self.summary()
             self._close()
-            print(__import__("json").dumps(clean(summary)), flush=True)
+            print(json.dumps(clean(summary)), flush=True)
         return code
 
     def _on_sigterm(self, signum, frame):

@@ -50,7 +50,7 @@ class CoreCounters:
 
 class RsuCore:
     def __init__(self, latency: LatencyModel, perception: PerceptionStage | None = None,
-                 bsm: BsmStage | None = None, spat=None, map_stage=None, *, t0: float = 0.0,
+                 bsm: BsmStage | None = None, spat=None, map_stage=None, *, t0: float | None = None,
                  bsm_rate_hz: float = 10.0, spat_rate_hz: float = 10.0, map_rate_hz: float = 1.0,
                  realtime: bool = False):
         self.latency, self.perception, self.bsm, self.spat, self.map = latency, perception, bsm, spat, map_stage
@@ -64,10 +64,16 @@ class RsuCore:
         self._pending_ready: dict[float, list[FrameResult]] = {}
         self.t = float("-inf")  # events up to here are done
         self.tracks_seen: set[int] = set()
-        if spat is not None:
-            self._push(t0, SPAT, (t0, 1.0 / spat_rate_hz, 0))
-        if map_stage is not None:
-            self._push(t0, MAP, (t0, 1.0 / map_rate_hz, 0))
+        self._periods = [(kind, 1.0 / rate) for kind, stage, rate in ((SPAT, spat, spat_rate_hz),
+                                                                      (MAP, map_stage, map_rate_hz)) if stage]
+        if t0 is not None:
+            self._start_clocks(t0)
+
+    def _start_clocks(self, t0: float) -> None:
+        """SPaT and MAP slots run from t0 (default: the first step, i.e. the run's first tick)."""
+        for kind, period in self._periods:
+            self._push(t0, kind, (t0, period, 0))
+        self._periods = []
 
     def _push(self, t: float, kind: int, payload) -> None:
         heapq.heappush(self._events, (t, kind, next(self._order), payload))
@@ -76,6 +82,8 @@ class RsuCore:
     def step(self, t: float, frames=(), statuses=()) -> list[Transmission]:
         """Everything up to simulation time t. `frames`: camera frames of time <= t (realtime: processed
         now); `statuses`: (status, wire_bytes) answers of the controller that arrived by t."""
+        if self._periods:
+            self._start_clocks(t)
         for status, wire_bytes in statuses:
             self._push(t, STATUS, (status, wire_bytes))
         for frame in frames:
