@@ -38,8 +38,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--print-config", action="store_true", help="print the resolved configuration as JSON and exit")
     for spec in SCHEMA:
         if spec.flag:
-            kwargs = {"dest": "key:" + spec.dotted, "metavar": "A,B" if spec.type.startswith("list[") else spec.type.upper(),
-                      "help": f"{spec.help} ({spec.dotted})"}
+            metavar = "A,B" if spec.type.startswith("list[") else spec.type.upper()
+            kwargs = {"dest": "key:" + spec.dotted, "metavar": metavar, "help": f"{spec.help} ({spec.dotted})"}
             if spec.type.startswith("list["):
                 kwargs["action"] = "append"
             p.add_argument(spec.flag, **kwargs)

@@ -400,8 +400,9 @@ def build_settings(flags: dict[str, Any] | None = None, config: dict[str, Any] |
                 where = f" (from ${spec.env})" if source == "environment" else ""
                 problems.append((dotted, f"{exc}{where}"))
     if settings.tracker.confirm_hits > settings.tracker.confirm_window:
-        problems.append(("tracker.confirm_hits", f"must be <= tracker.confirm_window "
-                                                 f"({settings.tracker.confirm_window}), got {settings.tracker.confirm_hits}"))
+        t = settings.tracker
+        problems.append(("tracker.confirm_hits", f"must be <= tracker.confirm_window ({t.confirm_window}), "
+                                                 f"got {t.confirm_hits}"))
     if settings.security.mode == "signed" and not settings.security.pki_dir:
         problems.append(("security.pki_dir", "signed messages need the folder of the station's certificate and key "
                                              "(`v2i pki init DIR --station NAME:0x7f,0x82`), or security.mode = "

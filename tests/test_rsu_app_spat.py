@@ -70,7 +70,8 @@ def signal_scenario(prefix: str, port: int) -> str:
     text = text.replace('listen = "socket://127.0.0.1:0"', 'listen = "socket://127.0.0.1:0"\ncollect_gap = 0.005')
     assert f"stop = {STOP}" in text and "collect_gap" in text
     return (text + SIGNALS + bridge_tables(prefix, port) + probe_table()
-            + rsu_table("rsu", "--pki-dir", "keys", "--set", "camera.names=", latencies="{ encode = 0.001, sign = 0.001 }"))
+            + rsu_table("rsu", "--pki-dir", "keys", "--set", "camera.names=",
+                        latencies="{ encode = 0.001, sign = 0.001 }"))
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,6 @@ import math
 import subprocess
 import sys
 import threading
-import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 

@@ -403,7 +403,10 @@ def _lane_to_asn1(lane: Lane, where: str) -> dict[str, Any]:
     out["laneAttributes"] = attrs
     if lane.maneuvers is not None:
         out["maneuvers"] = _names_to_bits(lane.maneuvers, MANEUVERS, f"{where}: maneuvers")
-    out["nodeList"] = _computed_to_asn1(lane.computed, where) if lane.computed else ("nodes", _nodes_to_asn1(lane.nodes, where))
+    if lane.computed is not None:
+        out["nodeList"] = _computed_to_asn1(lane.computed, where)
+    else:
+        out["nodeList"] = ("nodes", _nodes_to_asn1(lane.nodes, where))
     if lane.connections:
         out["connectsTo"] = [_connection_to_asn1(c, where) for c in lane.connections]
     if lane.overlays:
