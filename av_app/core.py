@@ -257,6 +257,8 @@ class AvCore:
             out["signal"] = dict(self.signals.last)
         out["objects"] = [[o.id, o.source, r(o.x), r(o.y), r(o.yaw), r(o.speed), r(o.length), r(o.width), r(o.age)]
                           for o in self.last_objects if not o.static]
+        out["lidar"] = [[o.id, r(o.t), r(o.x), r(o.y), r(o.yaw), r(o.speed), r(o.length), r(o.width)]
+                        for o in self._lidar_now if not o.static]
         return out
 
     @staticmethod

@@ -6,7 +6,8 @@ Hungarian association on centre distance (scipy.optimize.linear_sum_assignment)
 pairs a V2X object with the lidar track of the same vehicle: one object,
 source "both", position weighted by the two sources' standard deviations,
 size and the emergency flag from the BSM (a partially seen vehicle's lidar box
-is too small), velocity from the BSM when it is fresh. Unpaired objects keep
+is too small, and its centre counts for less the more of the vehicle it
+misses), velocity from the BSM when it is fresh. Unpaired objects keep
 their source ("v2x" or "lidar"); static structure from the lidar passes
 through untouched. Every object keeps its age: the planning time minus its
 newest measurement.
@@ -81,7 +82,11 @@ def fuse(v2x: list[V2xObject], lidar: list[LidarObject], t: float, cfg: FusionSe
     paired_v, paired_l = {r for r, _ in pairs}, {c for _, c in pairs}
     for r, c in pairs:
         v, l_ = vs[r], moving[c]
-        wv, wl = 1.0 / sigmas[v.id] ** 2, 1.0 / cfg.lidar_sigma ** 2
+        # a lidar box smaller than the vehicle the BSM describes sees only part of it (the rest hidden
+        # or facing away): its centre is off by up to half the missing size, so it counts for less
+        missing = max(0.0, v.length - l_.length) / 2, max(0.0, v.width - l_.width) / 2
+        wv = 1.0 / sigmas[v.id] ** 2
+        wl = 1.0 / (cfg.lidar_sigma ** 2 + missing[0] ** 2 + missing[1] ** 2)
         x = (v.x * wv + l_.x * wl) / (wv + wl)
         y = (v.y * wv + l_.y * wl) / (wv + wl)
         use_v = v.age <= l_.age + 0.2  # the BSM's speed and heading are measured, the track's estimated

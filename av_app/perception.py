@@ -161,6 +161,10 @@ class _Track:
 
     def report(self) -> LidarObject:
         x, y, vx, vy = (float(v) for v in self.kf.x)
+        if self.missed == 0:
+            # seen in this scan: its box is where it is now; the filter's position lags behind a box
+            # centre that moves unevenly (a vehicle coming out from behind a building grows its box)
+            x, y = self.box.x, self.box.y
         speed = math.hypot(vx, vy)
         yaw = self.box.yaw  # the box axis (mod pi) while the object is (nearly) still
         if speed > 1.0:

@@ -160,11 +160,11 @@ class Planner:
         (the station grid does not hold the stop point), corrects a speed above the profile, and feeds the
         road load forward."""
         cfg = self.cfg
-        ds = path.s[1] - path.s[0]
         # the profile's slope over the next half second: a small speed error is not corrected within
         # a few centimetres (that would turn sensor noise into jerk); stops are braked for exactly below
-        k = int(min(len(path.s) - 1, max(1, round(max(ds, PREVIEW_S * v0) / ds))))
-        a = (v_plan[k] ** 2 - v0 ** 2) / (2 * (path.s[k] - path.s[0]))
+        ahead = max(cfg.planner.path_ds, PREVIEW_S * v0)
+        k = int(min(len(path.s) - 1, max(1, np.searchsorted(path.s, path.s[0] + ahead - 1e-9))))
+        a = (v_plan[k] ** 2 - v0 ** 2) / (2 * max(path.s[k] - path.s[0], 1e-3))
         margin = cfg.planner.stop_margin_m
         for st in stops:
             d = st.s - path.s[0]

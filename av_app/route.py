@@ -100,7 +100,14 @@ class Route:
         return x, y, yaw, kappa
 
     def samples(self, s0: float, length: float, ds: float) -> PathSamples:
-        s = s0 + np.arange(0.0, length + 1e-9, ds)
+        """The stretch [s0, s0 + length]: s0 itself, then the route's fixed grid of multiples of ds.
+
+        A grid fixed to the route (not to the vehicle) keeps a conflict zone's first station where it
+        is from one plan to the next; a grid that moved with the vehicle would shift it by up to ds
+        each plan, and a stop point with it.
+        """
+        first = math.floor(s0 / ds + 1e-9) + 1
+        s = np.concatenate([[s0], np.arange(first, math.floor((s0 + length) / ds + 1e-9) + 1) * ds])
         x, y, yaw, kappa = self.at(s)
         return PathSamples(s, x, y, yaw, kappa)
 
