@@ -271,7 +271,6 @@ class AvApp:
         ticks_ok = None  # does every status fall on a tick? decided at the first tick
         dues: dict[str, Due] = {}
         status_due: Due | None = None
-        pending_status: list = []
         last_t = None
         while True:
             tick = part.next_tick(timeout=0.005)
@@ -302,8 +301,7 @@ class AvApp:
                 for item in self._inbox:
                     if item[3] in dues and item[0] <= t + 1e-9:
                         dues[item[3]].got(item[0])
-            statuses = pending_status + self.can.poll(0.0)
-            pending_status = []
+            statuses = self.can.poll(0.0)
             if statuses:
                 status_due.got(t)
             if ticks_ok:

@@ -18,6 +18,7 @@ import argparse
 import json
 import logging
 import sys
+from pathlib import Path
 
 from av_app.config import ConfigError, describe, load
 
@@ -32,6 +33,9 @@ _FLAGS = {
     "can_port": ("can", "port", int), "can_iface": ("can", "iface", str),
     "no_lidar": ("perception", "enabled", bool),
 }
+
+
+_PATHS = ("trust_anchor", "plan_log")  # flags that name files: relative to the working directory, not the config
 
 
 def parser() -> argparse.ArgumentParser:
@@ -70,6 +74,8 @@ def overrides(args: argparse.Namespace) -> dict[str, dict]:
             continue
         if flag == "connect":
             value = [c.strip() for c in value.split(",") if c.strip()]
+        elif flag in _PATHS and value:
+            value = str(Path(value).expanduser().resolve())  # a path on the command line is from here
         elif flag == "no_lidar":
             value = not value
         out.setdefault(table, {})[key] = value

@@ -90,6 +90,8 @@ class PerceptionSection:
     min_points: int = _f(3, "smallest cluster (occupied voxels) that makes an obstacle", low=1)
     static_length: float = _f(9.0, "a cluster whose box is longer than this is static structure, m", positive=True)
     static_width: float = _f(4.0, "a cluster whose box is wider than this is static structure, m", positive=True)
+    road_margin_m: float = _f(2.0, "a cluster whose centre is farther than this beyond the kerb (off the roads "
+                                    "the master describes) is static structure (0: keep every cluster)", low=0.0)
     gate_m: float = _f(2.5, "association gate between a track's prediction and a cluster, m", positive=True)
     confirm_scans: int = _f(2, "scans a track needs before it is reported", low=1)
     max_missed: int = _f(2, "scans a track survives without a cluster", low=0)

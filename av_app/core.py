@@ -59,9 +59,10 @@ class AvCore:
         """`world`: what the master said of the world in its welcome (the intersection's geometry)."""
         self.cfg, self.obu, self.clock = cfg, obu, clock
         self.route = Route(cfg.route.waypoints, cfg.route.corner_radius)
-        self.planner = Planner(cfg, self.route, LaneMap.from_world(world))
+        self.lanes = LaneMap.from_world(world)
+        self.planner = Planner(cfg, self.route, self.lanes)
         self.ego = EgoFilter(cfg.ego)
-        self.tracker = LidarTracker(cfg.perception)
+        self.tracker = LidarTracker(cfg.perception, self.lanes.on_road if self.lanes is not None else None)
         self.signals = SignalState(cfg, obu.origin)
         self.health = Health()
         self._v2x: dict[str, list[list]] = {}  # object id -> [[usable from (FUSE), V2xObject], ...]

@@ -1,4 +1,4 @@
-"""Lane directions for map-based prediction: which way does traffic go where an object is?
+"""The road map the app knows: where the roads are, and which way traffic goes on them.
 
 The world the master describes in its join reply (`Welcome.world["intersection"]`)
 is two straight roads crossing at the origin, one along x and one along y, with
@@ -8,7 +8,8 @@ east of the centre line northbound, west of it southbound. An object moving
 on a road arm is predicted along its lane's direction when its own heading is
 within `max_deviation` of it (Autoware's map-based prediction does the same
 with its lanelet map): a lidar box of a vehicle that is only partly visible has
-a skewed velocity; the lane has not.
+a skewed velocity; the lane has not. Lidar clusters off the roads (a building's
+wall seen at a grazing angle breaks into small pieces) are static structure.
 """
 from __future__ import annotations
 
@@ -34,6 +35,12 @@ class LaneMap:
             return cls(float(ix.get("road_width", 7.0)), float(ix.get("arm_length", 120.0)))
         except (TypeError, ValueError):
             return None
+
+    def on_road(self, x: float, y: float, margin: float) -> bool:
+        """Is (x, y) on a road arm or in the junction, counting `margin` metres beyond the kerb?"""
+        edge = self.road_width / 2 + margin
+        return (abs(y) <= edge and abs(x) <= self.arm_length + margin) or \
+            (abs(x) <= edge and abs(y) <= self.arm_length + margin)
 
     def direction(self, x: float, y: float) -> float | None:
         """The travel direction (rad) of the lane at (x, y); None in the junction box or off the roads."""

@@ -14,7 +14,9 @@ Pipeline per scan (Autoware's Euclidean-cluster chain, in bird's-eye view):
 4. boxes: the minimum-area rectangle of each cluster, in the world frame through
    the ego pose (from the ego filter, never the scan's ground-truth pose);
 5. static structure: a cluster longer or wider than any vehicle (a building
-   wall) is reported as static structure, never tracked as a moving obstacle;
+   wall), or one off the roads (more than `road_margin_m` beyond the kerb: a
+   building's wall seen at a grazing angle breaks into small pieces), is
+   reported as static structure, never tracked as a moving obstacle;
 6. tracking: clusters are associated with tracks by Hungarian assignment
    (scipy.optimize.linear_sum_assignment) on centre distance within a gate; a
    constant-velocity Kalman filter (filterpy) per track gives the velocity.
@@ -24,7 +26,7 @@ The scan's per-point hit labels are ground truth and are not read here.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from filterpy.kalman import KalmanFilter
@@ -177,10 +179,14 @@ class _Track:
 
 
 class LidarTracker:
-    """Clusters per scan -> tracks with velocity; static structure reported per scan, untracked."""
+    """Clusters per scan -> tracks with velocity; static structure reported per scan, untracked.
 
-    def __init__(self, cfg: PerceptionSection):
-        self.cfg = cfg
+    `on_road(x, y, margin)` (av_app.lanes.LaneMap.on_road) tells road from off-road; without it
+    only size makes static structure.
+    """
+
+    def __init__(self, cfg: PerceptionSection, on_road=None):
+        self.cfg, self.on_road = cfg, on_road
         self.tracks: list[_Track] = []
         self._next = 1
         self.t: float | None = None
@@ -193,6 +199,9 @@ class LidarTracker:
         cfg = self.cfg
         self.scans += 1
         self.last_clusters = len(clusters)
+        if self.on_road is not None and cfg.road_margin_m > 0:
+            clusters = [c if c.static or self.on_road(c.x, c.y, cfg.road_margin_m) else replace(c, static=True)
+                        for c in clusters]
         moving = [c for c in clusters if not c.static]
         static = [c for c in clusters if c.static]
         for tr in self.tracks:

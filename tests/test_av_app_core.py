@@ -155,8 +155,7 @@ def test_a_v2x_object_is_used_only_from_its_fuse_time_and_its_trace_record_has_e
     assert core.last_objects == []
     feed_ego(core, 0.04, -30.0 + 0.04 * 8.333)
     records = core.command(0.04, send)
-    assert [o.id for o in core.last_objects] == [core._v2x and next(iter(core._v2x))]
-    assert len(records) == 1
+    assert len(records) == 1 and [o.id for o in core.last_objects] == [records[0]["object"]]
     r = records[0]
     st = r["stamps"]
     assert r["can_counter"] == 1 and r["station"] == "rsu" and r["kind"] == "bsm" and r["object"].startswith("v2x:")
@@ -322,6 +321,12 @@ def test_bad_config_exits_2_naming_the_keys_and_help_lists_every_table(tmp_path)
                              timeout=60)
     assert shipped.returncode == 0, shipped.stderr
     assert json.loads(shipped.stdout)["route"]["corner_radius"] == 6.0
+    # a file named on the command line is found from the working directory, one in the file from the file's
+    relative = subprocess.run([sys.executable, "-m", "av_app", "--config", str(ROOT / "scenarios/apps/av.toml"),
+                               "--trust-anchor", path.name, "--print-config"], capture_output=True, text=True,
+                              timeout=60, cwd=tmp_path)
+    assert relative.returncode == 0, relative.stderr
+    assert json.loads(relative.stdout)["security"]["trust_anchor"] == str(path.resolve())
 
 
 def test_stage_clock_uses_scenario_latencies_over_the_config():

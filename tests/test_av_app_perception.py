@@ -189,3 +189,25 @@ def test_case_study_ev_behind_the_building_is_not_seen_and_nothing_moves(world):
         objs = tracker.update(0.1 * k, detect(scan.points, cav, cfg))
         assert all(o.static or o.speed < 1.0 for o in objs), [o for o in objs if not o.static]
     assert any(o.static for o in objs)
+
+
+def test_case_study_turn_with_the_road_map_the_building_never_becomes_an_obstacle(world):
+    """Along the cav's route through the right turn (the building's east wall then seen at grazing angles,
+    in small pieces), with the road map of the master's world: nothing but static structure."""
+    from av_app.lanes import LaneMap
+    from av_app.route import Route
+
+    cfg = PerceptionSection()
+    lanes = LaneMap.from_world({"intersection": {"road_width": 7.0, "arm_length": 120.0}})
+    tracker = LidarTracker(cfg, lanes.on_road)
+    route = Route([[1.75, -120.0], [1.75, -1.75], [120.0, -1.75]], 6.0)
+    pieces = 0
+    for k, s in enumerate(np.arange(100.0, 140.0, 0.5)):  # 5 m/s: 0.5 m per 0.1 s scan
+        x, y, yaw, _ = route.at(s)
+        pose = (float(x), float(y), float(yaw))
+        scan, labels = _scan(world, pose, (-119.0, -1.75, 0.0))  # the ev parked far out of range
+        clusters = detect(scan.points, pose, cfg)
+        pieces += sum(1 for c in clusters if not c.static and not lanes.on_road(c.x, c.y, cfg.road_margin_m))
+        objs = tracker.update(0.1 * k, clusters)
+        assert all(o.static for o in objs), [o for o in objs if not o.static]
+    assert pieces > 0  # there were small off-road pieces of wall to classify
