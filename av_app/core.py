@@ -30,6 +30,7 @@ from bridges.v2x import (AIR_ARRIVAL, CAN_COMMAND, DECODE, FUSE, PLAN, RECEIVE, 
 from av_app.config import AvConfig
 from av_app.ego import EgoFilter
 from av_app.fusion import FusedObject, fuse, predict_pose
+from av_app.geometry import to_frame
 from av_app.health import Health
 from av_app.lanes import LaneMap
 from av_app.obu import Obu, Rejected, V2xObject
@@ -256,8 +257,11 @@ class AvCore:
                                  None if c.station_in is None else r(c.station_in)] for c in p.conflicts]
         if self.signals.last:
             out["signal"] = dict(self.signals.last)
+        objs = [o for o in self.last_objects if not o.static]
         out["objects"] = [[o.id, o.source, r(o.x), r(o.y), r(o.yaw), r(o.speed), r(o.length), r(o.width), r(o.age)]
-                          for o in self.last_objects if not o.static]
+                          for o in objs]
+        if st is not None:  # the same objects in the ego frame: metres ahead, metres to the left
+            out["ego_frame"] = [[o.id, *(r(c) for c in to_frame(o.x, o.y, st.pose))] for o in objs]
         out["lidar"] = [[o.id, r(o.t), r(o.x), r(o.y), r(o.yaw), r(o.speed), r(o.length), r(o.width)]
                         for o in self._lidar_now if not o.static]
         return out
