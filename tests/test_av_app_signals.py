@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import time
+from datetime import datetime, timedelta, timezone
 
 import pytest
 
@@ -32,8 +33,11 @@ STOP_LINE_Y = -(3.5 + 1.0)
 
 @pytest.fixture(scope="module")
 def rsu():
-    ca = ScenarioCA.create()
-    return ca, Signer(ca.issue("rsu", [PSID_SPAT_MAP]), 0.0)
+    # valid from an hour ago: EPOCH is fixed when the module is collected, which in a full run can be
+    # minutes before this fixture runs, and a certificate must already be valid at the frames' times
+    start = datetime.now(timezone.utc) - timedelta(hours=1)
+    ca = ScenarioCA.create(start=start)
+    return ca, Signer(ca.issue("rsu", [PSID_SPAT_MAP], start=start), 0.0)
 
 
 def core(rsu, **tables):
