@@ -141,7 +141,7 @@ def bench_posing(n: int, steps: int) -> dict[str, float]:
     # participant path
     part = WorldParticipant(layout, 0.0, sensors=False)
     fmus = {name: _FakeFmu() for name in layout.vehicles}
-    part.open(fmus, 0.0)
+    part.attach(fmus, 0.0)
     try:
         fmu_list = list(fmus.values())
         t0 = time.perf_counter()

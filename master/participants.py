@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import re
 import subprocess
@@ -55,6 +54,8 @@ from bridges.timesync.coordinator import LATENCY_POLICIES, Coordinator, Expected
 from bridges.timesync.errors import TimeSyncError
 from bridges.timesync.messages import NAME
 from bridges.v2x import EPOCH
+from master.hooks import Hook, Outcome, RunContext
+from master.tables import Table
 
 log = logging.getLogger(__name__)
 
@@ -139,156 +140,115 @@ class ParticipantsSpec:
 
 
 # -- validation ----------------------------------------------------------------------
+def read_section(tables: dict[str, Any], context) -> ParticipantsSpec:
+    """The reader of the `[bridge]` and `[participants.NAME]` section (master.sections)."""
+    return parse_participants(tables.get("bridge"), tables.get("participants"), context.base_dir, context.problem)
+
+
 def parse_participants(bridge: Any, participants: Any, base_dir: Path,
                        problem: Callable[[str, str], None]) -> ParticipantsSpec:
     """Validate `[bridge]` and `[participants.NAME]`; every problem goes to `problem(key, message)`."""
-    b = _parse_bridge(bridge if bridge is not None else {}, problem)
+    b = _parse_bridge(Table(bridge if bridge is not None else {}, "bridge", problem))
+    members = Table(participants if participants is not None else {}, "participants", problem,
+                    expected="a table of [participants.NAME] tables")
     specs: dict[str, ParticipantSpec] = {}
-    if participants is not None and not isinstance(participants, dict):
-        problem("participants", f"expected a table of [participants.NAME] tables, got {type(participants).__name__}")
-        participants = {}
-    for name, table in (participants or {}).items():
-        spec = _parse_participant(name, table, problem)
+    for name in members.raw:
+        spec = _parse_participant(members, name)
         if spec is None:
             continue
         if spec.command and b.transport == "memory":
-            problem(f"participants.{name}.command", "the memory transport only reaches this process; "
-                                                    "a started participant needs transport = \"zenoh\" or \"udp\"")
+            members.problem(f"{name}.command", "the memory transport only reaches this process; "
+                                               "a started participant needs transport = \"zenoh\" or \"udp\"")
         specs[name] = spec
     return ParticipantsSpec(b, specs, base_dir)
 
 
-def _seconds(table: dict, key: str, dotted: str, default: float, problem, allow_zero: bool = False) -> float:
-    value = table.get(key, default)
-    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
-    if not ok or value < 0 or (value == 0 and not allow_zero) or value > 86400:
-        problem(dotted, f"expected wall-clock seconds {'>= 0' if allow_zero else '> 0'} (at most 86400), got {value!r}")
-        return default
-    return float(value)
+def _seconds(t: Table, key: str, default: float, allow_zero: bool = False) -> float:
+    """Wall-clock seconds, at most a day."""
+    return t.number(key, default, low=0, low_open=not allow_zero, high=86400,
+                    expected=f"wall-clock seconds {'>= 0' if allow_zero else '> 0'} (at most 86400)")
 
 
-def _endpoints(table: dict, key: str, problem) -> list[str]:
-    value = table.get(key, [])
-    if isinstance(value, str):
-        value = [value]
-    if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
-        problem(f"bridge.{key}", f"expected an endpoint string or a list of them (e.g. \"tcp/10.0.0.1:7447\"), "
-                                 f"got {value!r}")
-        return []
-    return list(value)
-
-
-def _parse_bridge(table: Any, problem) -> BridgeSpec:
-    if not isinstance(table, dict):
-        problem("bridge", f"expected a table, got {type(table).__name__}")
+def _parse_bridge(t: Table) -> BridgeSpec:
+    if not t.ok:  # not a table
         return BridgeSpec()
-    for k in table:
-        if k not in BRIDGE_KEYS:
-            problem(f"bridge.{k}", f"unknown key (expected one of: {', '.join(BRIDGE_KEYS)})")
+    t.unknown_keys(BRIDGE_KEYS)
     d = BridgeSpec()
-    spec = BridgeSpec(listen=_endpoints(table, "listen", problem), connect=_endpoints(table, "connect", problem))
-    spec.transport = table.get("transport", d.transport)
-    if spec.transport not in TRANSPORTS:
-        problem("bridge.transport", f"expected one of {', '.join(TRANSPORTS)}, got {spec.transport!r}")
-        spec.transport = d.transport
-    prefix = table.get("prefix")
-    if prefix is not None and (not isinstance(prefix, str) or not _PREFIX.match(prefix)):
-        problem("bridge.prefix", f"expected key chunks like \"v2i/run1\" (letters, digits, _ . -; no wildcards, "
-                                 f"no leading or trailing /), got {prefix!r}")
-    else:
-        spec.prefix = prefix
-    group = table.get("group")
-    if group is not None and not (isinstance(group, str) and group):
-        problem("bridge.group", f"expected a multicast group address string, got {group!r}")
-    else:
-        spec.group = group
-    port = table.get("port")
-    if port is not None and (isinstance(port, bool) or not isinstance(port, int) or not 1 <= port <= 65535):
-        problem("bridge.port", f"expected a port number 1..65535, got {port!r}")
-    else:
-        spec.port = port
-    options = table.get("options", {})
-    if not isinstance(options, dict):
-        problem("bridge.options", f"expected a table of transport options, got {type(options).__name__}")
-    else:
-        spec.options = dict(options)
-    spec.latency = table.get("latency", d.latency)
-    if spec.latency not in LATENCY_POLICIES:
-        problem("bridge.latency", f"expected one of {', '.join(LATENCY_POLICIES)}, got {spec.latency!r}")
-        spec.latency = d.latency
-    spec.on_refused = table.get("on_refused", d.on_refused)
-    if spec.on_refused not in ON_REFUSED:
-        problem("bridge.on_refused", f"expected one of {', '.join(ON_REFUSED)}, got {spec.on_refused!r}")
-        spec.on_refused = d.on_refused
-    spec.camera_encoding = table.get("camera_encoding", d.camera_encoding)
-    if spec.camera_encoding not in ("raw", "jpeg", "off"):
-        problem("bridge.camera_encoding", f"expected one of raw, jpeg, off, got {spec.camera_encoding!r}")
-        spec.camera_encoding = d.camera_encoding
-    spec.join_timeout_s = _seconds(table, "join_timeout_s", "bridge.join_timeout_s", d.join_timeout_s, problem)
-    spec.heartbeat_s = _seconds(table, "heartbeat_s", "bridge.heartbeat_s", d.heartbeat_s, problem)
-    spec.heartbeat_timeout_s = _seconds(table, "heartbeat_timeout_s", "bridge.heartbeat_timeout_s",
-                                        d.heartbeat_timeout_s, problem)
+    spec = BridgeSpec(listen=t.endpoints("listen"), connect=t.endpoints("connect"))
+    spec.transport = t.choice("transport", TRANSPORTS, d.transport)
+    spec.prefix = t.string("prefix", None, pattern=_PREFIX,
+                           expected="key chunks like \"v2i/run1\" (letters, digits, _ . -; no wildcards, "
+                                    "no leading or trailing /)")
+    spec.group = t.string("group", None, expected="a multicast group address string")
+    spec.port = t.number("port", None, low=1, high=65535, integer=True, expected="a port number 1..65535")
+    spec.options = dict(t.sub("options", "a table of transport options").raw)
+    spec.latency = t.choice("latency", LATENCY_POLICIES, d.latency)
+    spec.on_refused = t.choice("on_refused", ON_REFUSED, d.on_refused)
+    spec.camera_encoding = t.choice("camera_encoding", ("raw", "jpeg", "off"), d.camera_encoding)
+    spec.join_timeout_s = _seconds(t, "join_timeout_s", d.join_timeout_s)
+    spec.heartbeat_s = _seconds(t, "heartbeat_s", d.heartbeat_s)
+    spec.heartbeat_timeout_s = _seconds(t, "heartbeat_timeout_s", d.heartbeat_timeout_s)
     if spec.heartbeat_timeout_s <= spec.heartbeat_s:
-        problem("bridge.heartbeat_timeout_s", f"must be longer than heartbeat_s ({spec.heartbeat_s:g} s), "
-                                              f"got {spec.heartbeat_timeout_s:g}")
+        t.problem("heartbeat_timeout_s", f"must be longer than heartbeat_s ({spec.heartbeat_s:g} s), "
+                                         f"got {spec.heartbeat_timeout_s:g}")
     return spec
 
 
-def _parse_participant(name: str, table: Any, problem) -> ParticipantSpec | None:
-    key = f"participants.{name}"
+def _parse_participant(members: Table, name: str) -> ParticipantSpec | None:
     if not NAME.match(name):
-        problem(key, "participant names must be letters, digits, _ or - (at most 64; they are key chunks)")
+        members.problem(name, "participant names must be letters, digits, _ or - (at most 64; they are key chunks)")
         return None
-    if not isinstance(table, dict):
-        problem(key, f"expected a table, got {type(table).__name__}")
+    t = members.sub(name)
+    if not t.ok:
         return None
-    for k in table:
-        if k not in PARTICIPANT_KEYS:
-            problem(f"{key}.{k}", f"unknown key (expected one of: {', '.join(PARTICIPANT_KEYS)})")
+    t.unknown_keys(PARTICIPANT_KEYS)
     spec = ParticipantSpec(name)
-    role = table.get("role")
-    if role is not None and not (isinstance(role, str) and role):
-        problem(f"{key}.role", f"expected a role name such as \"rsu_app\", got {role!r}")
-    else:
-        spec.role = role
-    required = table.get("required", True)
-    if not isinstance(required, bool):
-        problem(f"{key}.required", f"expected true or false, got {required!r}")
-    else:
-        spec.required = required
-    spec.timeout_s = _seconds(table, "timeout_s", f"{key}.timeout_s", spec.timeout_s, problem)
-    every = table.get("sync_every", 1)
-    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        problem(f"{key}.sync_every", f"expected an integer >= 1 (steps between ticks), got {every!r}")
-    else:
-        spec.sync_every = every
-    latencies = table.get("latencies", {})
-    if not isinstance(latencies, dict):
-        problem(f"{key}.latencies", f"expected a table of stage = simulated seconds, got {type(latencies).__name__}")
-    else:
-        for stage, value in latencies.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                problem(f"{key}.latencies.{stage}", f"expected simulated seconds >= 0, got {value!r}")
-            else:
-                spec.latencies[stage] = float(value)
-    command = table.get("command")
-    if command is not None:
-        if not isinstance(command, list) or not command or not all(isinstance(c, str) and c for c in command):
-            problem(f"{key}.command", f"expected a non-empty list of strings (\"{{python}}\" is this Python), "
-                                      f"got {command!r}")
-        else:
-            spec.command = list(command)
-    env = table.get("env", {})
+    spec.role = t.string("role", None, expected="a role name such as \"rsu_app\"")
+    spec.required = t.boolean("required", spec.required)
+    spec.timeout_s = _seconds(t, "timeout_s", spec.timeout_s)
+    spec.sync_every = t.number("sync_every", spec.sync_every, low=1, integer=True,
+                               expected="an integer >= 1 (steps between ticks)")
+    latencies = t.sub("latencies", "a table of stage = simulated seconds")
+    for stage in latencies.raw:
+        seconds = latencies.number(stage, None, low=0, expected="simulated seconds >= 0")
+        if seconds is not None:
+            spec.latencies[stage] = seconds
+    spec.command = t.strings("command", None, nonempty=True,
+                             expected="a non-empty list of strings (\"{python}\" is this Python)")
+    env = t.get("env", {})
     if not isinstance(env, dict) or not all(isinstance(v, str) for v in env.values()):
-        problem(f"{key}.env", f"expected a table of NAME = \"string\", got {env!r}")
+        t.problem("env", f"expected a table of NAME = \"string\", got {env!r}")
     else:
         spec.env = dict(env)
     return spec
 
 
 # -- the bridge in the master loop ----------------------------------------------------------
-class ParticipantBridge:
-    """Time protocol of one run; inert (and free) when the scenario has no participants."""
+def run_prefix(spec: ParticipantsSpec, run_name: str) -> str:
+    """The bus key prefix of one run: the scenario's, or one of its own so parallel runs never hear each other."""
+    safe = re.sub(r"[^A-Za-z0-9_.\-]", "_", run_name) or "run"
+    return spec.bridge.prefix or f"v2i/{safe}-{uuid.uuid4().hex[:8]}"
+
+
+def open_run_bus(bridge: BridgeSpec, prefix: str):
+    """The run's bus (the master owns it; its hooks share it); TimeSyncError naming [bridge] when it cannot open."""
+    from bridges.transport import TransportError, open_bus
+
+    try:
+        return open_bus(bridge.transport, prefix=prefix, sender="master", **bridge.bus_options())
+    except (TransportError, OSError, ValueError, TypeError) as exc:  # port taken, bad endpoint, bad option
+        raise TimeSyncError(f"[bridge]: cannot open the {bridge.transport} bus ({bridge.bus_options()}): {exc}") \
+            from exc
+
+
+class ParticipantBridge(Hook):
+    """Time protocol of one run, as the first manipulator of the loop; inert (and free) without participants.
+
+    It opens after the serial and CAN gateways, so the apps it starts find their ports in their environment.
+    """
+
+    name = "participants"
+    opens_after = ("serial", "can")
 
     def __init__(self, spec: ParticipantsSpec | None, mode: str, rtf: float, run_name: str, quiet: bool = True,
                  world: dict[str, Any] | None = None):
@@ -297,10 +257,7 @@ class ParticipantBridge:
         self.spec, self.mode, self.rtf, self.quiet = spec, mode, rtf, quiet
         self.world = dict(world) if world is not None else {"origin": GeoOrigin().to_dict()}
         self.serial_urls: dict[str, str] = {}  # [serial.NAME] -> its pyserial URL, once the ports are open
-        self.prefix = None
-        if spec is not None:
-            safe = re.sub(r"[^A-Za-z0-9_.\-]", "_", run_name) or "run"
-            self.prefix = spec.bridge.prefix or f"v2i/{safe}-{uuid.uuid4().hex[:8]}"
+        self.prefix = run_prefix(spec, run_name) if spec is not None else None
         self.bus = None
         self.coordinator: Coordinator | None = None
         self.procs: dict[str, subprocess.Popen] = {}
@@ -317,17 +274,14 @@ class ParticipantBridge:
         return self.spec is not None
 
     # -- hooks ---------------------------------------------------------------------------
-    def open(self, run_dir: Path, t0: float, step: float) -> dict[str, Any]:
-        from bridges.transport import TransportError, open_bus
-
+    def open(self, ctx: RunContext) -> dict[str, Any]:
         b = self.spec.bridge
-        self._step = step
+        t0, run_dir = ctx.t0, ctx.run_dir
+        self._step = ctx.h
+        self.serial_urls = dict(ctx.serial_urls)
         # the Unix time simulation time t0 stands for: apps date their J2735/1609.2 messages from it
         self.world[EPOCH] = time.time() - t0
-        try:
-            self.bus = open_bus(b.transport, prefix=self.prefix, sender="master", **b.bus_options())
-        except (TransportError, OSError, ValueError, TypeError) as exc:  # port taken, bad endpoint, bad option
-            raise TimeSyncError(f"[bridge]: cannot open the {b.transport} bus ({b.bus_options()}): {exc}") from exc
+        self.bus = ctx.bus
         self.coordinator = Coordinator(
             self.bus, [p.expected() for p in self.spec.participants.values()], mode=self.mode,
             latency_policy=b.latency, heartbeat_s=b.heartbeat_s, heartbeat_timeout_s=b.heartbeat_timeout_s,
@@ -361,7 +315,11 @@ class ParticipantBridge:
     def after_step(self, k: int, t_next: float) -> None:
         """Nothing: participants see the state of t_next at the next tick."""
 
-    def close(self, status: str = "completed", error: str | None = None) -> dict[str, Any]:
+    def close(self, outcome: Outcome | None = None) -> dict[str, Any]:
+        status = outcome.status if outcome is not None else "completed"
+        error = outcome.error if outcome is not None else None
+        if status == "stopped":  # a stop condition ended the run: for the apps, it ended normally
+            status, error = "completed", outcome.stop_reason
         self._ended = True
         if self.coordinator is not None:
             self.coordinator.end(status, error or "")
@@ -374,8 +332,7 @@ class ParticipantBridge:
                 report["bus"] = self.bus.stats()
             except Exception as exc:  # stats are a nicety; the bus may be half gone
                 report["bus"] = {"error": str(exc)}
-            self.bus.close()
-        return report
+        return report  # the bus is the master's: it closes it after every hook
 
     def report(self) -> dict[str, Any]:
         b = self.spec.bridge

@@ -33,6 +33,8 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any, Callable
 
 from bridges.v2x import AIR_ARRIVAL, TX_KEY, rx_key, stamp_ns
+from master.hooks import Hook, Outcome, RunContext
+from master.tables import Table, did_you_mean, is_number
 
 MODES = ("channel", "bypass")
 _KEYS = ("mode", "max_range_m", "channel", "stations")
@@ -60,79 +62,64 @@ class V2xSpec:
                              for n, s in self.stations.items()}}
 
 
+def read_section(value: Any, context) -> V2xSpec | None:
+    """The `[v2x]` section's reader (master.sections; it also checks that the file has a [bridge])."""
+    return parse_v2x(value, context.instances, context.problem)
+
+
 def parse_v2x(table: Any, instances: dict, problem: Callable[[str, str], None]) -> V2xSpec | None:
     """Validate `[v2x]`; each problem goes to `problem(key, message)`."""
     from fmus.channel.model import ChannelParams
 
-    if not isinstance(table, dict):
-        problem("v2x", f"expected a table, got {type(table).__name__}")
+    t = Table(table, "v2x", problem)
+    if not t.ok:
         return None
-    bad = [0]
-
-    def p(key: str, msg: str) -> None:
-        bad[0] += 1
-        problem(key, msg)
-
-    for key in table:
-        if key not in _KEYS:
-            p(f"v2x.{key}", f"unknown key (expected one of: {', '.join(_KEYS)})")
+    t.unknown_keys(_KEYS)
     spec = V2xSpec()
-    spec.mode = table.get("mode", "channel")
-    if spec.mode not in MODES:
-        p("v2x.mode", f"expected one of {', '.join(MODES)}, got {spec.mode!r}")
-    rng = table.get("max_range_m", spec.max_range_m)
-    if isinstance(rng, bool) or not isinstance(rng, (int, float)) or not math.isfinite(rng) or rng <= 0:
-        p("v2x.max_range_m", f"expected a number > 0, got {rng!r}")
-    else:
-        spec.max_range_m = float(rng)
-    channel = table.get("channel", {})
-    if not isinstance(channel, dict):
-        p("v2x.channel", f"expected a table of V2XChannel parameters, got {type(channel).__name__}")
-    else:
+    spec.mode = t.choice("mode", MODES, spec.mode)
+    spec.max_range_m = t.number("max_range_m", spec.max_range_m, low=0, low_open=True, expected="a number > 0")
+    channel = t.sub("channel", "a table of V2XChannel parameters")
+    if channel.ok:
         names = {f.name: f for f in fields(ChannelParams)}
-        for key, value in channel.items():
+        for key in channel.raw:
             if key not in names:
-                p(f"v2x.channel.{key}", "unknown channel parameter (see fmus/channel/model.py ChannelParams)")
+                hint = did_you_mean(key, names)
+                channel.problem(key, "unknown channel parameter (see fmus/channel/model.py ChannelParams)"
+                                + (f"; {hint}" if hint else ""))
         try:
-            replace(ChannelParams(), **{k: v for k, v in channel.items() if k in names}).validate()
-            spec.channel = dict(channel)
+            replace(ChannelParams(), **{k: v for k, v in channel.raw.items() if k in names}).validate()
+            spec.channel = dict(channel.raw)
         except (ValueError, TypeError) as exc:
-            p("v2x.channel", str(exc))
-    stations = table.get("stations", {})
-    if not isinstance(stations, dict) or not stations:
-        p("v2x.stations", "expected at least one [v2x.stations.NAME] table")
-        stations = {}
-    for name, item in stations.items():
-        key = f"v2x.stations.{name}"
-        if not isinstance(item, dict):
-            p(key, f"expected a table, got {type(item).__name__}")
+            channel.problem(None, str(exc))
+    stations = t.sub("stations", "at least one [v2x.stations.NAME] table")
+    if stations.ok and not stations.raw:
+        stations.problem(None, "expected at least one [v2x.stations.NAME] table")
+    for name in stations.raw:
+        s = stations.sub(name)
+        if not s.ok:
             continue
-        for k in item:
-            if k not in _STATION_KEYS:
-                p(f"{key}.{k}", f"unknown key (expected one of: {', '.join(_STATION_KEYS)})")
-        if ("position" in item) == ("vehicle" in item):
-            p(key, "give exactly one of position = [x, y, z] or vehicle = INSTANCE")
+        s.unknown_keys(_STATION_KEYS)
+        if ("position" in s) == ("vehicle" in s):
+            s.problem(None, "give exactly one of position = [x, y, z] or vehicle = INSTANCE")
             continue
-        if "position" in item:
-            pos = item["position"]
-            if (not isinstance(pos, list) or len(pos) != 3
-                    or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                               for v in pos)):
-                p(f"{key}.position", f"expected [x, y, z] in metres, got {pos!r}")
+        if "position" in s:
+            pos = s.get("position")
+            if not isinstance(pos, list) or len(pos) != 3 or not all(is_number(v) for v in pos):
+                s.problem("position", f"expected [x, y, z] in metres, got {pos!r}")
                 continue
             spec.stations[name] = Station(name, position=tuple(float(v) for v in pos))
         else:
-            vehicle = item["vehicle"]
+            vehicle = s.get("vehicle")
             inst = instances.get(vehicle) if isinstance(vehicle, str) else None
             if inst is None:
-                p(f"{key}.vehicle", f"no FMU instance {vehicle!r} in [fmus] (instances: {', '.join(instances)})")
+                s.problem("vehicle", f"no FMU instance {vehicle!r} in [fmus] (instances: {', '.join(instances)})")
                 continue
             outputs = {v.name for v in inst.model_description.modelVariables if v.causality == "output"}
             if not {"x", "y"} <= outputs:
-                p(f"{key}.vehicle", f"instance {vehicle!r} has no x, y outputs to place the station")
+                s.problem("vehicle", f"instance {vehicle!r} has no x, y outputs to place the station")
                 continue
             spec.stations[name] = Station(name, vehicle=vehicle)
-    return spec if bad[0] == 0 else None
+    return spec if t.ok else None
 
 
 @dataclass(order=True)
@@ -238,19 +225,22 @@ class Air:
         return len(self._heap)
 
 
-class RadioBridge:
+class RadioBridge(Hook):
     """The air in the master's loop: takes frames from `v2x/tx/*` on the bus, delivers to `v2x/rx/<name>`.
 
     Frames received from the bus are buffered by a subscriber thread and put on
     the air in the master's thread at the next step, at their own t_sim (a
     frame stamped earlier than the step already done is put on the air at once
     and counted as late). Hooks: open / after_step / close, like the serial and
-    world bridges.
+    world bridges. The bus and the event log are the run's (`RunContext`).
     """
 
-    def __init__(self, spec: V2xSpec, bus, log: Callable[[dict], None] | None = None):
-        self.spec, self.bus = spec, bus
-        self.log = log or (lambda e: None)
+    name = "v2x"
+
+    def __init__(self, spec: V2xSpec):
+        self.spec = spec
+        self.bus = None
+        self.log: Callable[[dict], None] = lambda e: None
         self.air: Air | None = None
         self._inbox: list[Any] = []
         self._lock = threading.Lock()
@@ -263,7 +253,9 @@ class RadioBridge:
         self._order = itertools.count()
         self.late = 0
 
-    def open(self, fmus: dict[str, Any], t: float, world=None) -> dict[str, Any]:
+    def open(self, ctx: RunContext) -> dict[str, Any]:
+        self.bus, self.log = ctx.bus, ctx.events
+        fmus, t, world = ctx.fmus, ctx.t0, ctx.world
         self._world = world
         for st in self.spec.stations.values():
             if st.vehicle is not None:
@@ -305,7 +297,7 @@ class RadioBridge:
                              stamps={**d.stamps, AIR_ARRIVAL: stamp_ns(d.arrival)})
         self._t_done = t_next
 
-    def close(self) -> dict[str, Any]:
+    def close(self, outcome: Outcome | None = None) -> dict[str, Any]:
         if self._sub is not None:
             self._sub.close()
             self._sub = None

@@ -57,7 +57,8 @@ from typing import Any, Callable
 
 from master.events import EventLog
 from master.errors import SimulationError
-from master.fmu_variables import family
+from master.hooks import Hook, Outcome, RunContext
+from master.tables import Table
 
 SYNC_MODES = ("turn", "free")
 SERIAL_KEYS = ("instance", "listen", "rx", "tx", "tx_end_time", "idle", "sync", "connect_timeout",
@@ -95,109 +96,63 @@ class SerialSpec:
         return out
 
 
+def read_section(value: Any, context) -> dict[str, SerialSpec]:
+    """The `[serial.NAME]` section's reader (master.sections)."""
+    return parse_serial(value, context.instances, context.connections, context.problem)
+
+
 def parse_serial(table: Any, instances: dict, connections: list, problem: Callable[[str, str], None]
                  ) -> dict[str, SerialSpec]:
     """Validate the `[serial.<name>]` tables; every problem goes to `problem(key, message)`."""
-    if not isinstance(table, dict):
-        problem("serial", f"expected a table of [serial.NAME] tables, got {type(table).__name__}")
-        return {}
+    ports = Table(table, "serial", problem, expected="a table of [serial.NAME] tables")
     driven = {(c.dst, c.dst_var): str(c) for c in connections}
     specs: dict[str, SerialSpec] = {}
     used_rx: dict[tuple[str, str], str] = {}
     used_ports: dict[tuple[str, int], str] = {}
-    for name, spec in table.items():
-        key = f"serial.{name}"
+    for name in ports.raw:
         if not _NAME.match(name):
-            problem(key, "serial port names must be identifiers (letters, digits, _; no dots)")
+            ports.problem(name, "serial port names must be identifiers (letters, digits, _; no dots)")
             continue
-        if not isinstance(spec, dict):
-            problem(key, f"expected a table, got {type(spec).__name__}")
+        t = ports.sub(name)
+        if not t.ok:
             continue
-        bad = False
-        for k in spec:
-            if k not in SERIAL_KEYS:
-                problem(f"{key}.{k}", f"unknown key (expected one of: {', '.join(SERIAL_KEYS)})")
-                bad = True
-        inst_name = spec.get("instance")
-        if not isinstance(inst_name, str) or not inst_name:
-            problem(f"{key}.instance", "required: the name of the FMU instance that owns the serial port")
-            continue
-        inst = instances.get(inst_name)
+        t.unknown_keys(SERIAL_KEYS)
+        inst = t.instance("instance", instances, "the name of the FMU instance that owns the serial port")
         if inst is None:
-            problem(f"{key}.instance", f"unknown instance {inst_name!r} (instances: {', '.join(instances) or 'none'})")
             continue
-        variables = inst.variables
-        listen = spec.get("listen", "socket://127.0.0.1:0")
+        inst_name = inst.name
+        listen = t.get("listen", "socket://127.0.0.1:0")
         match = _URL.match(listen) if isinstance(listen, str) else None
         if not match or not 0 <= int(match.group(2)) <= 65535:
-            problem(f"{key}.listen", f"expected \"socket://HOST:PORT\" (PORT 0-65535, 0 = any free port), got {listen!r}")
-            bad = True
+            t.problem("listen", f"expected \"socket://HOST:PORT\" (PORT 0-65535, 0 = any free port), got {listen!r}")
             host, port = "127.0.0.1", 0
         else:
             host, port = match.group(1).strip("[]"), int(match.group(2))
-
-        def variable(k: str, causality: str, fam: str, required: bool) -> str | None:
-            nonlocal bad
-            value = spec.get(k, _DEFAULTS[k])
-            if k not in spec and value not in variables and not required:
-                return None  # optional default the FMU does not have
-            if not isinstance(value, str) or not value:
-                problem(f"{key}.{k}", f"expected a variable name of {inst_name}, got {value!r}")
-                bad = True
-                return None
-            var = variables.get(value)
-            if var is None:
-                import difflib
-
-                close = difflib.get_close_matches(value, list(variables), n=3)
-                hint = ("did you mean " + " or ".join(repr(c) for c in close) + "?") if close else "see `v2i info`"
-                problem(f"{key}.{k}", f"unknown variable {inst_name}.{value} ({hint})")
-                bad = True
-                return None
-            if var.causality != causality or family(var.type) != fam:
-                article = "an" if var.causality[0] in "aeiou" else "a"
-                problem(f"{key}.{k}", f"{inst_name}.{value} is {article} {var.causality} of type {var.type}; "
-                                      f"expected a {fam} {causality}")
-                bad = True
-                return None
-            return value
-
-        rx = variable("rx", "input", "string", True)
-        tx = variable("tx", "output", "string", True)
-        tx_end = variable("tx_end_time", "output", "real", False)
-        idle = variable("idle", "output", "boolean", False)
+        rx = t.fmu_variable("rx", inst, causality="input", family="string", default=_DEFAULTS["rx"])
+        tx = t.fmu_variable("tx", inst, causality="output", family="string", default=_DEFAULTS["tx"])
+        tx_end = t.fmu_variable("tx_end_time", inst, causality="output", family="real",
+                                default=_DEFAULTS["tx_end_time"], required=False)
+        idle = t.fmu_variable("idle", inst, causality="output", family="boolean", default=_DEFAULTS["idle"],
+                              required=False)
         if rx is not None:
             if (inst_name, rx) in driven:
-                problem(f"{key}.rx", f"{inst_name}.{rx} is already driven by {driven[(inst_name, rx)]}")
-                bad = True
+                t.problem("rx", f"{inst_name}.{rx} is already driven by {driven[(inst_name, rx)]}")
             if (inst_name, rx) in used_rx:
-                problem(f"{key}.rx", f"{inst_name}.{rx} is already the rx of serial.{used_rx[(inst_name, rx)]}")
-                bad = True
+                t.problem("rx", f"{inst_name}.{rx} is already the rx of serial.{used_rx[(inst_name, rx)]}")
             used_rx[(inst_name, rx)] = name
         if port and (host, port) in used_ports:
-            problem(f"{key}.listen", f"{listen} is already used by serial.{used_ports[(host, port)]}")
-            bad = True
+            t.problem("listen", f"{listen} is already used by serial.{used_ports[(host, port)]}")
         used_ports[(host, port)] = name
-        sync = spec.get("sync", "turn" if idle else "free")
-        if sync not in SYNC_MODES:
-            problem(f"{key}.sync", f"expected one of {', '.join(SYNC_MODES)}, got {sync!r}")
-            bad = True
-        elif sync == "turn" and not idle:
-            problem(f"{key}.sync", "\"turn\" needs an idle output (set idle = \"...\") or use sync = \"free\"")
-            bad = True
+        sync = t.choice("sync", SYNC_MODES, "turn" if idle else "free")  # a bad one falls back to the default
+        if sync == "turn" and not idle:
+            t.problem("sync", "\"turn\" needs an idle output (set idle = \"...\") or use sync = \"free\"")
         numbers = {}
         for k, default, positive in (("connect_timeout", 0.0, False), ("turn_timeout", 5.0, True),
                                      ("collect_gap", 0.02, True)):
-            value = spec.get(k, default)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0 or value > 3600:
-                problem(f"{key}.{k}", f"expected wall-clock seconds 0..3600, got {value!r}")
-                bad = True
-            elif positive and value == 0:
-                problem(f"{key}.{k}", f"must be > 0, got {value!r}")
-                bad = True
-            else:
-                numbers[k] = float(value)
-        if bad or rx is None or tx is None:
+            numbers[k] = t.number(k, default, low=0, high=3600, expected="wall-clock seconds 0..3600")
+            if positive and numbers[k] == 0:
+                t.problem(k, f"must be > 0, got {t.get(k)!r}")
+        if not t.ok or rx is None or tx is None:
             continue
         specs[name] = SerialSpec(name, inst_name, listen, host, port, rx, tx, tx_end, idle, sync, **numbers)
     return specs
@@ -403,8 +358,10 @@ class SerialBridge:
             events(event)
 
 
-class SerialBridges:
-    """All serial ports of a run; inert (and free) when the scenario has none."""
+class SerialBridges(Hook):
+    """All serial ports of a run, as one hook of the loop; inert (and free) when the scenario has none."""
+
+    name = "serial"
 
     def __init__(self, specs: dict[str, SerialSpec] | None, mode: str, quiet: bool = True):
         self.specs = dict(specs or {})
@@ -417,13 +374,15 @@ class SerialBridges:
     def __bool__(self) -> bool:
         return bool(self.specs)
 
-    def open(self, members: dict[str, tuple[Any, int]], run_dir: Path, t: float) -> dict[str, Any]:
+    def open(self, ctx: RunContext) -> dict[str, Any]:
+        t = ctx.t0
         for spec in self.specs.values():
-            fmu, multiple = members[spec.instance]
+            member = ctx.members[spec.instance]
             sync = spec.sync if self.mode == "lockstep" else "free"
-            bridge = SerialBridge(spec, fmu, multiple, sync, run_dir, self.quiet)
+            bridge = SerialBridge(spec, member.fmu, member.multiple, sync, ctx.run_dir, self.quiet)
             self.bridges.append(bridge)
             self.urls[spec.name] = bridge.open(t)
+        ctx.serial_urls.update(self.urls)  # started apps find them in their environment
         self.ready.set()
         for bridge in self.bridges:
             bridge.wait_for_client(t)
@@ -439,5 +398,5 @@ class SerialBridges:
             if k % b.multiple == 0:
                 b.after_step(t_next)
 
-    def close(self) -> dict[str, Any]:
+    def close(self, outcome: Outcome | None = None) -> dict[str, Any]:
         return {b.spec.name: b.close() for b in self.bridges}

@@ -12,6 +12,7 @@ from typing import Any
 
 from bridges.camera_stream import CameraPublisher
 from bridges.sensor_stream import GNSS_KEY, LIDAR_KEY, encode_fix, encode_scan
+from master.hooks import Hook, Outcome, RunContext
 
 
 class SensorStreams:
@@ -36,9 +37,43 @@ class SensorStreams:
             return
         self.counts[kind] += 1
 
+    @staticmethod
+    def hook(world_participant, camera_encoding: str = "raw") -> "StreamsHook":
+        """The hook that puts `world_participant`'s sensor samples on the run's bus."""
+        return StreamsHook(world_participant, camera_encoding)
+
     def report(self) -> dict[str, Any]:
         out: dict[str, Any] = {"published": dict(self.counts)}
         if self.camera is not None:
             out["camera_encoding"] = self.camera.encoding
             out["camera_bytes"] = self.camera.bytes
         return out
+
+
+class StreamsHook(Hook):
+    """Opens before the world (whose first samples, at t0, come while it opens) and listens to it.
+
+    The lidar payloads name the vehicle each ray hit by the scene's body labels, which exist
+    once the world is open: the hook reads them then, so even the scans of t0 carry them.
+    """
+
+    name = "streams"
+
+    def __init__(self, world_participant, camera_encoding: str = "raw"):
+        self.part, self.encoding = world_participant, camera_encoding
+        self.streams: SensorStreams | None = None
+
+    def open(self, ctx: RunContext) -> None:
+        self.streams = SensorStreams(ctx.bus, self.encoding)
+        self.part.listeners.append(self._publish)
+
+    def _publish(self, kind: str, name: str, t: float, data: Any) -> None:
+        streams = self.streams
+        if not streams.labels and self.part.world is not None:
+            streams.labels.update(self.part.world.scene.labels)
+        streams(kind, name, t, data)
+
+    def close(self, outcome: Outcome | None = None) -> dict[str, Any] | None:
+        if self._publish in self.part.listeners:
+            self.part.listeners.remove(self._publish)
+        return self.streams.report() if self.streams is not None else None

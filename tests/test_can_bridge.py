@@ -13,6 +13,7 @@ import textwrap
 import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import can
 import pytest
@@ -23,6 +24,7 @@ from bridges.can.codec import CavCodec, CavCommand, Mode, RollingCounter
 from master.can_bridge import CanBridge, parse_can
 from master.errors import ScenarioError
 from master.fmu_runtime import FmuInstance
+from master.hooks import Member, RunContext
 from master.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -90,11 +92,17 @@ class Vehicle:
         self.fmu.close()
 
 
+def run_context(vehicle: Vehicle, run_dir: Path) -> RunContext:
+    """What the master's loop hands its hooks: here the one vehicle, stepped from 0 with step H."""
+    time_settings = SimpleNamespace(start=0.0, step=H, n_steps=100, mode="lockstep", rtf=1.0)
+    return RunContext(SimpleNamespace(time=time_settings), run_dir, {"cav": Member(vehicle.fmu, 1)})
+
+
 def open_bridge(scenario, vehicle, run_dir: Path, **table) -> CanBridge:
     cfg = parse({"vehicle": "cav", "interface": "virtual", "channel": channel(), **table}, scenario)
     bridge = CanBridge(cfg, "lockstep")
     run_dir.mkdir(exist_ok=True)
-    bridge.open({"cav": (vehicle.fmu, 1)}, run_dir, 0.0, H)
+    bridge.open(run_context(vehicle, run_dir))
     return bridge
 
 
@@ -198,7 +206,7 @@ def echo_run(scenario, vehicle_fmu, tmp: Path, max_delay: float, seed: int):
     bridge = CanBridge(cfg, "lockstep")
     (tmp / "run").mkdir()
     try:
-        bridge.open({"cav": (veh.fmu, 1)}, tmp / "run", 0.0, H)
+        bridge.open(run_context(veh, tmp / "run"))
         veh.run(bridge, 40)
     finally:
         stats = bridge.close()
@@ -406,7 +414,7 @@ def test_udp_multicast_between_two_processes(scenario, vehicle_fmu, tmp_path):
     cfg = parse({"vehicle": "cav", "port": port, "sync": "free"}, scenario)
     bridge = CanBridge(cfg, "lockstep")
     (tmp_path / "run").mkdir()
-    bridge.open({"cav": (veh.fmu, 1)}, tmp_path / "run", 0.0, H)
+    bridge.open(run_context(veh, tmp_path / "run"))
     try:
         proc = subprocess.run([sys.executable, "-c", SENDER, str(port)], cwd=ROOT, timeout=60,
                               capture_output=True, text=True)

@@ -51,11 +51,11 @@ intersection is centred at the origin, one road along x and one along y.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from bridges.geo import GeoError, GeoOrigin
+from master.tables import Table, did_you_mean, is_number
 
 DEFAULT_WHEELBASE = 2.3927  # VehicleDynamics default (CommonRoad vehicle 1)
 VEHICLE_KINDS = ("car", "emergency")
@@ -198,28 +198,8 @@ class WorldLayout:
         return out
 
 
-def _num(table: dict, key: str, where: str, default: Any, problem: Callable, *, positive=False,
-         nonneg=False, integer=False) -> Any:
-    value = table.get(key, default)
-    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
-    if integer and ok and value != int(value):
-        ok = False
-    if not ok:
-        problem(f"{where}.{key}", f"expected {'an integer' if integer else 'a finite number'}, got {value!r}")
-        return default
-    if positive and value <= 0:
-        problem(f"{where}.{key}", f"must be > 0, got {value!r}")
-        return default
-    if nonneg and value < 0:
-        problem(f"{where}.{key}", f"must be >= 0, got {value!r}")
-        return default
-    return int(value) if integer else float(value)
-
-
-def _unknown(table: dict, allowed: tuple[str, ...], where: str, problem: Callable) -> None:
-    for key in table:
-        if key not in allowed:
-            problem(f"{where}.{key}", f"unknown key (expected one of: {', '.join(allowed)})")
+_POSITIVE = {"low": 0, "low_open": True}  # Table.number bounds: > 0
+_NONNEG = {"low": 0}  # >= 0
 
 
 def _boxes_overlap(a: Building, b: Building) -> bool:
@@ -228,208 +208,194 @@ def _boxes_overlap(a: Building, b: Building) -> bool:
     return ax0 < bx1 and bx0 < ax1 and ay0 < by1 and by0 < ay1  # touching faces are allowed
 
 
+def read_section(value: Any, context) -> WorldLayout | None:
+    """The `[world]` section's reader (master.sections)."""
+    return parse_world(value, context.instances, context.problem)
+
+
 def parse_world(table: Any, instances: dict, problem: Callable[[str, str], None]) -> WorldLayout | None:
     """Validate the `[world]` table; every problem goes to `problem(key, message)`.
 
     `instances` maps FMU instance names to master.scenario.Instance (its
     `parameters` give a vehicle's start position and wheelbase).
     """
-    if not isinstance(table, dict):
-        problem("world", f"expected a table, got {type(table).__name__}")
+    t = Table(table, "world", problem)
+    if not t.ok:
         return None
-    n_before = [0]
-
-    def count(key: str, message: str) -> None:
-        n_before[0] += 1
-        problem(key, message)
-
-    p = count
-    for key in table:  # said as "world: unknown key 'x'" (tests/test_scenario.py expects the "world:" prefix)
+    for key in t.raw:  # said as "world: unknown key 'x'" (tests/test_scenario.py expects the "world:" prefix)
         if key not in _TOP:
-            p("world", f"unknown key {key!r} (expected one of: {', '.join(_TOP)})")
+            hint = did_you_mean(key, _TOP)
+            t.problem(None, f"unknown key {key!r} (expected one of: {', '.join(_TOP)})" + (f"; {hint}" if hint else ""))
     layout = WorldLayout()
-    if "origin" in table:
+    if "origin" in t:
         try:
-            layout.origin = GeoOrigin.from_dict(table["origin"])
+            layout.origin = GeoOrigin.from_dict(t.get("origin"))
         except GeoError as exc:
-            p("world.origin", str(exc))
+            t.problem("origin", str(exc))
 
-    inter = table.get("intersection", {})
-    if not isinstance(inter, dict):
-        p("world.intersection", f"expected a table, got {type(inter).__name__}")
-        inter = {}
-    _unknown(inter, _INTERSECTION, "world.intersection", p)
+    inter = t.sub("intersection")
+    inter.unknown_keys(_INTERSECTION)
     d = Intersection()
-    ix = Intersection(
-        road_width=_num(inter, "road_width", "world.intersection", d.road_width, p, positive=True),
-        lane_width=_num(inter, "lane_width", "world.intersection", d.lane_width, p, positive=True),
-        arm_length=_num(inter, "arm_length", "world.intersection", d.arm_length, p, positive=True),
-        sidewalk_width=_num(inter, "sidewalk_width", "world.intersection", d.sidewalk_width, p, nonneg=True))
+    ix = Intersection(road_width=inter.number("road_width", d.road_width, **_POSITIVE),
+                      lane_width=inter.number("lane_width", d.lane_width, **_POSITIVE),
+                      arm_length=inter.number("arm_length", d.arm_length, **_POSITIVE),
+                      sidewalk_width=inter.number("sidewalk_width", d.sidewalk_width, **_NONNEG))
     if ix.lane_width > ix.road_width:
-        p("world.intersection.lane_width", f"wider than the road ({ix.lane_width} > road_width {ix.road_width})")
+        inter.problem("lane_width", f"wider than the road ({ix.lane_width} > road_width {ix.road_width})")
     if ix.arm_length <= ix.road_width / 2 + ix.sidewalk_width:
-        p("world.intersection.arm_length", "must reach beyond the sidewalks (> road_width/2 + sidewalk_width)")
+        inter.problem("arm_length", "must reach beyond the sidewalks (> road_width/2 + sidewalk_width)")
     layout.intersection = ix
     half = ix.arm_length
 
-    layout.buildings = _buildings(table.get("buildings", []), ix, p)
-    layout.cameras = _cameras(table.get("cameras", []), layout.buildings, half, p)
-    layout.vehicles = _vehicles(table.get("vehicles", {}), instances, half, p)
-    layout.signals = _signals(table.get("signals", []), instances, layout.buildings, half, p)
-    return layout if n_before[0] == 0 else None
+    layout.buildings = _buildings(t, ix)
+    layout.cameras = _cameras(t, layout.buildings, half)
+    layout.vehicles = _vehicles(t, instances, half)
+    layout.signals = _signals(t, instances, layout.buildings, half)
+    return layout if t.ok else None
 
 
-def _named_list(items: Any, where: str, problem: Callable) -> list[tuple[str, dict]]:
+def _named_list(world: Table, key: str) -> list[Table]:
+    """The tables of the array of tables `[[world.KEY]]`, each named by a unique `name`."""
+    where = world.key(key)
+    items = world.get(key, [])
     if not isinstance(items, list):
-        problem(where, f"expected an array of tables ([[{where}]]), got {type(items).__name__}")
+        world.problem(key, f"expected an array of tables ([[{where}]]), got {type(items).__name__}")
         return []
     out = []
     names: dict[str, str] = {}
     for i, item in enumerate(items):
-        key = f"{where}[{i}]"
-        if not isinstance(item, dict):
-            problem(key, f"expected a table, got {type(item).__name__}")
+        t = Table(item, f"{where}[{i}]", parent=world)
+        if not t.ok:
             continue
-        name = item.get("name")
-        if not isinstance(name, str) or not name:
-            problem(f"{key}.name", "required: a non-empty string")
-            name = f"{where.rsplit('.', 1)[-1]}{i}"
+        name = t.string("name", required=True)
+        if name is None:
+            name = f"{key}{i}"
         elif name in names:
-            problem(f"{key}.name", f"duplicate name {name!r} (also {names[name]})")
-        names[name] = key
-        out.append((key, item))
+            t.problem("name", f"duplicate name {name!r} (also {names[name]})")
+        names[name] = t.prefix
+        out.append(t)
     return out
 
 
-def _buildings(items: Any, ix: Intersection, p: Callable) -> list[Building]:
+def _buildings(world: Table, ix: Intersection) -> list[Building]:
     out: list[tuple[str, Building]] = []
-    for key, item in _named_list(items, "world.buildings", p):
-        _unknown(item, _BUILDING, key, p)
-        b = Building(str(item.get("name", "")), _num(item, "x", key, 0.0, p), _num(item, "y", key, 0.0, p),
-                     _num(item, "size_x", key, 1.0, p, positive=True),
-                     _num(item, "size_y", key, 1.0, p, positive=True),
-                     _num(item, "height", key, 1.0, p, positive=True))
+    for t in _named_list(world, "buildings"):
+        t.unknown_keys(_BUILDING)
+        b = Building(str(t.get("name", "")), t.number("x", 0.0), t.number("y", 0.0),
+                     t.number("size_x", 1.0, **_POSITIVE), t.number("size_y", 1.0, **_POSITIVE),
+                     t.number("height", 1.0, **_POSITIVE))
         (x0, y0, _), (x1, y1, _) = b.bounds
         if max(abs(x0), abs(x1), abs(y0), abs(y1)) > ix.arm_length:
-            p(key, f"outside the map (|x|, |y| <= arm_length {ix.arm_length})")
+            t.problem(None, f"outside the map (|x|, |y| <= arm_length {ix.arm_length})")
         hw = ix.road_width / 2
         if (x0 < hw and x1 > -hw) or (y0 < hw and y1 > -hw):
-            p(key, f"stands on the carriageway (|x| or |y| < road_width/2 = {hw})")
+            t.problem(None, f"stands on the carriageway (|x| or |y| < road_width/2 = {hw})")
         for other_key, other in out:
             if _boxes_overlap(b, other):
-                p(key, f"overlaps {other_key} ({other.name})")
-        out.append((key, b))
+                t.problem(None, f"overlaps {other_key} ({other.name})")
+        out.append((t.prefix, b))
     return [b for _, b in out]
 
 
-def _cameras(items: Any, buildings: list[Building], half: float, p: Callable) -> list[CameraSpec]:
+def _cameras(world: Table, buildings: list[Building], half: float) -> list[CameraSpec]:
     out = []
     d = CameraSpec("", 0, 0, 0)
-    for key, item in _named_list(items, "world.cameras", p):
-        _unknown(item, _CAMERA, key, p)
-        c = CameraSpec(str(item.get("name", "")), _num(item, "x", key, 0.0, p), _num(item, "y", key, 0.0, p),
-                       _num(item, "z", key, 5.0, p, positive=True),
-                       _num(item, "yaw", key, d.yaw, p), _num(item, "pitch", key, d.pitch, p),
-                       _num(item, "roll", key, d.roll, p),
-                       _num(item, "width", key, d.width, p, positive=True, integer=True),
-                       _num(item, "height", key, d.height, p, positive=True, integer=True),
-                       _num(item, "fov_deg", key, d.fov_deg, p, positive=True),
-                       _num(item, "rate_hz", key, d.rate_hz, p, positive=True))
+    for t in _named_list(world, "cameras"):
+        t.unknown_keys(_CAMERA)
+        c = CameraSpec(str(t.get("name", "")), t.number("x", 0.0), t.number("y", 0.0),
+                       t.number("z", 5.0, **_POSITIVE),
+                       t.number("yaw", d.yaw), t.number("pitch", d.pitch), t.number("roll", d.roll),
+                       t.number("width", d.width, integer=True, **_POSITIVE),
+                       t.number("height", d.height, integer=True, **_POSITIVE),
+                       t.number("fov_deg", d.fov_deg, **_POSITIVE),
+                       t.number("rate_hz", d.rate_hz, **_POSITIVE))
         if c.fov_deg >= 170:
-            p(f"{key}.fov_deg", f"must be < 170 (a pinhole camera), got {c.fov_deg}")
+            t.problem("fov_deg", f"must be < 170 (a pinhole camera), got {c.fov_deg}")
         if not -90 < c.pitch < 90:
-            p(f"{key}.pitch", f"must be within (-90, 90) degrees, got {c.pitch}")
+            t.problem("pitch", f"must be within (-90, 90) degrees, got {c.pitch}")
         if max(abs(c.x), abs(c.y)) > half:
-            p(key, f"outside the map (|x|, |y| <= arm_length {half})")
+            t.problem(None, f"outside the map (|x|, |y| <= arm_length {half})")
         for i, b in enumerate(buildings):
             (x0, y0, z0), (x1, y1, z1) = b.bounds
             if x0 <= c.x <= x1 and y0 <= c.y <= y1 and z0 <= c.z <= z1:
-                p(key, f"inside building world.buildings[{i}] ({b.name})")
+                t.problem(None, f"inside building world.buildings[{i}] ({b.name})")
         out.append(c)
     return out
 
 
-def _vehicles(table: Any, instances: dict, half: float, p: Callable) -> dict[str, VehicleSpec]:
-    if not isinstance(table, dict):
-        p("world.vehicles", f"expected a table of [world.vehicles.INSTANCE] tables, got {type(table).__name__}")
-        return {}
+def _vehicles(world: Table, instances: dict, half: float) -> dict[str, VehicleSpec]:
+    vehicles = world.sub("vehicles", "a table of [world.vehicles.INSTANCE] tables")
     out: dict[str, VehicleSpec] = {}
     lidar_on: str | None = None
-    for name, item in table.items():
-        key = f"world.vehicles.{name}"
-        if not isinstance(item, dict):
-            p(key, f"expected a table, got {type(item).__name__}")
+    for name in vehicles.raw:
+        t = vehicles.sub(name)
+        if not t.ok:
             continue
-        _unknown(item, _VEHICLE, key, p)
+        t.unknown_keys(_VEHICLE)
         inst = instances.get(name)
         if inst is None:
-            p(key, f"no FMU instance {name!r} in [fmus] (instances: {', '.join(instances) or 'none'})")
+            t.problem(None, f"no FMU instance {name!r} in [fmus] (instances: {', '.join(instances) or 'none'})")
         else:
             outputs = {v.name for v in inst.model_description.modelVariables if v.causality == "output"}
             missing = [v for v in ("x", "y", "yaw") if v not in outputs]
             if missing:
-                p(key, f"instance {name!r} has no output(s) {', '.join(missing)} to pose the body from")
-        kind = item.get("kind", "car")
-        if kind not in VEHICLE_KINDS:
-            p(f"{key}.kind", f"expected one of {', '.join(VEHICLE_KINDS)}, got {kind!r}")
-            kind = "car"
+                t.problem(None, f"instance {name!r} has no output(s) {', '.join(missing)} to pose the body from")
+        kind = t.choice("kind", VEHICLE_KINDS, "car")
         dl, dw, dh, dc = _VEHICLE_DEFAULTS[kind]
-        length = _num(item, "length", key, dl, p, positive=True)
-        width = _num(item, "width", key, dw, p, positive=True)
-        height = _num(item, "height", key, dh, p, positive=True)
-        color = item.get("color", dc)
+        length = t.number("length", dl, **_POSITIVE)
+        width = t.number("width", dw, **_POSITIVE)
+        height = t.number("height", dh, **_POSITIVE)
+        color = t.get("color", dc)
         if (not isinstance(color, list | tuple) or len(color) != 3
-                or not all(isinstance(c, int | float) and not isinstance(c, bool) and 0 <= c <= 1 for c in color)):
-            p(f"{key}.color", f"expected [r, g, b] with each in 0..1, got {color!r}")
+                or not all(is_number(c) and 0 <= c <= 1 for c in color)):
+            t.problem("color", f"expected [r, g, b] with each in 0..1, got {color!r}")
             color = dc
         params = inst.parameters if inst is not None else {}
         wheelbase = params.get("wheelbase", DEFAULT_WHEELBASE)
-        overhang = _num(item, "rear_overhang", key, max((length - wheelbase) / 2, 0.0), p, nonneg=True)
+        overhang = t.number("rear_overhang", max((length - wheelbase) / 2, 0.0), **_NONNEG)
         if overhang >= length:
-            p(f"{key}.rear_overhang", f"must be shorter than the body ({overhang} >= length {length})")
+            t.problem("rear_overhang", f"must be shorter than the body ({overhang} >= length {length})")
         v = VehicleSpec(name, length, width, height, tuple(float(c) for c in color), kind, overhang)
         if inst is not None:
             x0, y0 = params.get("x0", 0.0), params.get("y0", 0.0)
             if max(abs(x0), abs(y0)) > half:
-                p(key, f"starts outside the map at ({x0}, {y0}) (|x|, |y| <= arm_length {half})")
-        if "lidar" in item:
-            v.lidar = _lidar(item["lidar"], f"{key}.lidar", p)
+                t.problem(None, f"starts outside the map at ({x0}, {y0}) (|x|, |y| <= arm_length {half})")
+        if "lidar" in t:
+            v.lidar = _lidar(t.sub("lidar"))
             if lidar_on is not None:
-                p(f"{key}.lidar", f"only one vehicle carries a lidar (already on {lidar_on})")
-            lidar_on = key
-        if "gnss" in item:
-            v.gnss = _gnss(item["gnss"], f"{key}.gnss", p)
+                t.problem("lidar", f"only one vehicle carries a lidar (already on {lidar_on})")
+            lidar_on = t.prefix
+        if "gnss" in t:
+            v.gnss = _gnss(t.sub("gnss"))
         out[name] = v
     return out
 
 
-def _lidar(item: Any, key: str, p: Callable) -> LidarSpec | None:
-    if not isinstance(item, dict):
-        p(key, f"expected a table, got {type(item).__name__}")
+def _lidar(t: Table) -> LidarSpec | None:
+    if not t.ok:  # not a table
         return None
-    _unknown(item, _LIDAR, key, p)
+    t.unknown_keys(_LIDAR)
     d = LidarSpec()
-    spec = LidarSpec(_num(item, "channels", key, d.channels, p, positive=True, integer=True),
-                     _num(item, "horizontal_samples", key, d.horizontal_samples, p, positive=True, integer=True),
-                     _num(item, "range", key, d.range, p, positive=True),
-                     _num(item, "rate_hz", key, d.rate_hz, p, positive=True),
-                     _num(item, "fov_up", key, d.fov_up, p), _num(item, "fov_down", key, d.fov_down, p),
-                     _num(item, "mount_above_roof", key, d.mount_above_roof, p, nonneg=True))
+    spec = LidarSpec(t.number("channels", d.channels, integer=True, **_POSITIVE),
+                     t.number("horizontal_samples", d.horizontal_samples, integer=True, **_POSITIVE),
+                     t.number("range", d.range, **_POSITIVE),
+                     t.number("rate_hz", d.rate_hz, **_POSITIVE),
+                     t.number("fov_up", d.fov_up), t.number("fov_down", d.fov_down),
+                     t.number("mount_above_roof", d.mount_above_roof, **_NONNEG))
     if not -90 <= spec.fov_down <= spec.fov_up <= 90:
-        p(key, f"need -90 <= fov_down <= fov_up <= 90, got fov_down {spec.fov_down}, fov_up {spec.fov_up}")
+        t.problem(None, f"need -90 <= fov_down <= fov_up <= 90, got fov_down {spec.fov_down}, fov_up {spec.fov_up}")
     return spec
 
 
-def _gnss(item: Any, key: str, p: Callable) -> GnssSpec | None:
-    if not isinstance(item, dict):
-        p(key, f"expected a table, got {type(item).__name__}")
+def _gnss(t: Table) -> GnssSpec | None:
+    if not t.ok:  # not a table
         return None
-    _unknown(item, _GNSS, key, p)
+    t.unknown_keys(_GNSS)
     d = GnssSpec()
-    noise = {k: _num(item, k, key, getattr(d, k), p, nonneg=True)
+    noise = {k: t.number(k, getattr(d, k), **_NONNEG)
              for k in ("sigma_h", "sigma_v", "sigma_heading_deg", "sigma_speed", "bias_walk_h", "bias_walk_v")}
-    return GnssSpec(rate_hz=_num(item, "rate_hz", key, d.rate_hz, p, positive=True),
-                    seed=_num(item, "seed", key, d.seed, p, nonneg=True, integer=True), **noise)
+    return GnssSpec(rate_hz=t.number("rate_hz", d.rate_hz, **_POSITIVE),
+                    seed=t.number("seed", d.seed, integer=True, **_NONNEG), **noise)
 
 
 def _tlc_instances(instances: dict) -> list[str]:
@@ -441,35 +407,32 @@ def _tlc_instances(instances: dict) -> list[str]:
     return out
 
 
-def _signals(items: Any, instances: dict, buildings: list[Building], half: float, p: Callable) -> list[SignalSpec]:
+def _signals(world: Table, instances: dict, buildings: list[Building], half: float) -> list[SignalSpec]:
     out = []
     tlcs = _tlc_instances(instances)
-    for key, item in _named_list(items, "world.signals", p):
-        _unknown(item, _SIGNAL, key, p)
-        group = item.get("signal_group")
-        if isinstance(group, bool) or not isinstance(group, int) or not 1 <= group <= 8:
-            p(f"{key}.signal_group", f"required: an integer 1..8 (the controller's state_k output), got {group!r}")
-            group = 1
-        instance = item.get("instance")
+    for t in _named_list(world, "signals"):
+        t.unknown_keys(_SIGNAL)
+        group = t.number("signal_group", 1, low=1, high=8, integer=True, required=True,
+                         expected="an integer 1..8 (the controller's state_k output)")
+        instance = t.get("instance")
         if instance is None:
             if len(tlcs) != 1:
-                p(f"{key}.instance", f"required when [fmus] has {len(tlcs)} {TLC_MODEL} instances "
-                                     f"({', '.join(tlcs) or 'none'})")
+                t.problem("instance", f"required when [fmus] has {len(tlcs)} {TLC_MODEL} instances "
+                                      f"({', '.join(tlcs) or 'none'})")
             instance = tlcs[0] if tlcs else ""
         elif not isinstance(instance, str) or instance not in instances:
-            p(f"{key}.instance",
-              f"no FMU instance {instance!r} in [fmus] (instances: {', '.join(instances) or 'none'})")
+            t.problem("instance",
+                      f"no FMU instance {instance!r} in [fmus] (instances: {', '.join(instances) or 'none'})")
         elif instance not in tlcs:
-            p(f"{key}.instance", f"instance {instance!r} is not a {TLC_MODEL} "
-                                 f"({TLC_MODEL} instances: {', '.join(tlcs) or 'none'})")
-        s = SignalSpec(str(item.get("name", "")), _num(item, "x", key, 0.0, p), _num(item, "y", key, 0.0, p),
-                       _num(item, "yaw", key, 0.0, p), int(group), str(instance),
-                       _num(item, "height", key, SignalSpec.height, p, positive=True))
+            t.problem("instance", f"instance {instance!r} is not a {TLC_MODEL} "
+                                  f"({TLC_MODEL} instances: {', '.join(tlcs) or 'none'})")
+        s = SignalSpec(str(t.get("name", "")), t.number("x", 0.0), t.number("y", 0.0), t.number("yaw", 0.0),
+                       group, str(instance), t.number("height", SignalSpec.height, **_POSITIVE))
         if max(abs(s.x), abs(s.y)) > half:
-            p(key, f"outside the map at ({s.x}, {s.y}) (|x|, |y| <= arm_length {half})")
+            t.problem(None, f"outside the map at ({s.x}, {s.y}) (|x|, |y| <= arm_length {half})")
         for i, b in enumerate(buildings):
             (x0, y0, _), (x1, y1, _) = b.bounds
             if x0 <= s.x <= x1 and y0 <= s.y <= y1:
-                p(key, f"inside building world.buildings[{i}] ({b.name})")
+                t.problem(None, f"inside building world.buildings[{i}] ({b.name})")
         out.append(s)
     return out

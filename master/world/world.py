@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from master.hooks import Hook, Outcome, RunContext
 from master.stats import percentiles
 from master.world.camera import Camera
 from master.world.gnss import Fix, Gnss
@@ -71,7 +72,7 @@ class Schedule:
         return True
 
 
-class WorldParticipant:
+class WorldParticipant(Hook):
     """The world in the master's loop. After each step it poses the vehicle bodies from
     their FMUs' outputs, sets the signal heads from their controllers' state_k outputs,
     and, at each sensor's rate, renders the cameras, scans the lidars (keeping which
@@ -94,7 +95,16 @@ class WorldParticipant:
         # called as listener(kind, name, t, data) for each camera Frame, lidar Scan and GNSS Fix
         self.listeners: list[Any] = []
 
-    def open(self, fmus: dict[str, Any], t: float) -> dict[str, Any]:
+    name = "world"
+
+    def open(self, ctx: RunContext) -> dict[str, Any]:
+        """The loop's world hook: the scene, posed from the run's FMUs; the run's other hooks see it as ctx.world."""
+        meta = self.attach(ctx.fmus, ctx.t0)
+        ctx.world = self.world
+        return meta
+
+    def attach(self, fmus: dict[str, Any], t: float) -> dict[str, Any]:
+        """Build the scene and pose it from `fmus` at t (also for tools that step FMUs themselves)."""
         self.world = World(self.layout)
         for name in self.layout.vehicles:
             fmu = fmus[name]
@@ -191,7 +201,7 @@ class WorldParticipant:
                         for s in self.layout.signals},
         }
 
-    def close(self) -> dict[str, Any]:
+    def close(self, outcome: Outcome | None = None) -> dict[str, Any]:
         meta = self.metadata()
         if self.world is not None:
             self.world.close()
