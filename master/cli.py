@@ -79,10 +79,25 @@ def _cmd_run(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(format_summary(result))
-    if result.status != "completed":
+    if result.status not in ("completed", "stopped"):
         print(f"error: {result.error}", file=sys.stderr)
         return 1
+    if result.metadata.get("metrics") and not args.no_report:
+        _write_run_report(result.run_dir)
     return 0
+
+
+def _write_run_report(run_dir: Path) -> None:
+    """The run page beside the data; a run that finished is never failed by its report."""
+    try:
+        from master.report import write_report
+
+        page, _ = write_report([run_dir])
+    except Exception as exc:  # noqa: BLE001 -- matplotlib/PyAV trouble leaves the recorded run as it is
+        print(f"  report: not written ({type(exc).__name__}: {exc}); retry with `v2i report {run_dir}`",
+              file=sys.stderr)
+        return
+    print(f"  report: {page}")
 
 
 def _cmd_info(args) -> int:
@@ -121,6 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--rtf", type=float, help="realtime: target real-time factor (override time.rtf)")
     r.add_argument("--overrun", choices=("catch-up", "skip", "slip", "abort"), help="realtime overrun policy")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--no-report", action="store_true",
+                   help="skip report.html (written when the run has metrics: the case study's verdict)")
     r.set_defaults(func=_cmd_run)
 
     i = sub.add_parser("info", help="list an FMU's variables")

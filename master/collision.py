@@ -36,6 +36,8 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
+from master.hooks import Hook, Outcome, RunContext
+
 
 @dataclass(frozen=True)
 class Body:
@@ -194,3 +196,57 @@ def _relative_speed(pa, pb) -> float:
 
 def _finite(value: float) -> float | None:
     return value if math.isfinite(value) else None
+
+
+class CollisionHook(Hook):
+    """The collision check as an observer of the master's loop (master.hooks protocol).
+
+    Bodies come from the world's `[world.vehicles.NAME]` (length, width, rear
+    overhang), poses from each vehicle FMU's x, y, yaw (and v when it has one)
+    after every step. A first contact is written to the run's event log and, when
+    the scenario stops on collisions, ends the run after that step.
+    """
+
+    name = "collision"
+
+    def __init__(self, bodies: dict[str, Body], stop_on_collision: bool = False):
+        self.check = CollisionCheck(bodies)
+        self.stop_on_collision = stop_on_collision
+        self._getters: list[tuple[str, Any]] = []
+        self._ctx = None
+
+    @classmethod
+    def for_scenario(cls, scenario, stop_on_collision: bool = False) -> "CollisionHook | None":
+        """The check of a scenario's world vehicles (None without a world of at least two vehicles)."""
+        world = scenario.world
+        if world is None:
+            return None
+        bodies = {n: Body(n, v.length, v.width, v.rear_overhang) for n, v in world.vehicles.items()
+                  if n in scenario.instances}
+        return cls(bodies, stop_on_collision) if len(bodies) >= 2 else None
+
+    def open(self, ctx: RunContext) -> dict[str, Any]:
+        self._ctx = ctx
+        for name in self.check.bodies:
+            fmu = ctx.members[name].fmu
+            outs = [v for v in ("x", "y", "yaw", "v") if v in fmu.variables]
+            if outs[:3] != ["x", "y", "yaw"]:
+                raise ValueError(f"collision check: vehicle {name!r} needs x, y and yaw outputs, has {outs}")
+            get = fmu.accessor(fmu.access_key("x"), [fmu.variables[n].valueReference for n in outs], setter=False)
+            self._getters.append((name, get))
+        self.after_step(-1, ctx.t0)
+        return {"bodies": {n: [b.length, b.width, b.rear_overhang] for n, b in self.check.bodies.items()},
+                "stop_on_collision": self.stop_on_collision}
+
+    def after_step(self, k: int, t_next: float) -> None:
+        poses = {}
+        for name, get in self._getters:
+            vals = get()
+            poses[name] = (vals[0], vals[1], vals[2], vals[3] if len(vals) > 3 else 0.0)
+        for contact in self.check.update(t_next, poses):
+            self._ctx.events({"t": t_next, "event": "collision", **contact.to_dict()})
+            if self.stop_on_collision:
+                self._ctx.request_stop(f"collision: {contact.a} and {contact.b} touch at t = {t_next:.2f} s")
+
+    def close(self, outcome: Outcome | None = None) -> dict[str, Any]:
+        return self.check.metrics()

@@ -19,6 +19,8 @@ import operator
 from dataclasses import dataclass, field
 from typing import Callable, Iterable
 
+from master.hooks import Hook
+
 _COMPARE = {ast.Lt: operator.lt, ast.LtE: operator.le, ast.Gt: operator.gt, ast.GtE: operator.ge,
             ast.Eq: operator.eq, ast.NotEq: operator.ne}
 _ARITH = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv}
@@ -126,3 +128,66 @@ def compile_condition(text: str, signals: Iterable[str], positions: Iterable[str
 
     cond._fn = build(tree.body)
     return cond
+
+
+COLLISION = "collision"  # the stop_on word for the collision check's first contact (master.collision)
+
+
+def signals_of(instances) -> tuple[list[str], list[str]]:
+    """(every readable "inst.var" of the scenario's instances, the instances with x and y outputs)."""
+    signals, positions = [], []
+    for name, inst in instances.items():
+        outputs = set()
+        for var in inst.model_description.modelVariables:
+            if var.type in ("Real", "Float64", "Float32", "Integer", "Int32", "Boolean") and "[" not in var.name:
+                signals.append(f"{name}.{var.name}")
+                if var.causality == "output":
+                    outputs.add(var.name)
+        if {"x", "y"} <= outputs:
+            positions.append(name)
+    return signals, positions
+
+
+class StopConditions(Hook):
+    """`[time] stop_on` conditions over signals as an observer of the loop: the first that holds after a
+    step ends the run there (the collision word is the collision check's, not this hook's)."""
+
+    name = "stop_on"
+
+    def __init__(self, conditions: list[Condition]):
+        self.conditions = conditions
+        self._getters: dict[str, Callable[[], float]] = {}
+        self._ctx = None
+        self.fired: dict[str, float] | None = None
+
+    @classmethod
+    def for_scenario(cls, scenario) -> "StopConditions | None":
+        texts = [c for c in scenario.time.stop_on if c != COLLISION]
+        if not texts:
+            return None
+        signals, positions = signals_of(scenario.instances)
+        return cls([compile_condition(text, signals, positions) for text in texts])
+
+    def open(self, ctx) -> dict:
+        self._ctx = ctx
+        for cond in self.conditions:
+            for sig in cond.signals:
+                if sig not in self._getters:
+                    inst, var = sig.split(".", 1)
+                    fmu = ctx.members[inst].fmu
+                    get = fmu.accessor(fmu.access_key(var), [fmu.variables[var].valueReference], setter=False)
+                    self._getters[sig] = lambda get=get: float(get()[0])
+        return {"conditions": [c.text for c in self.conditions]}
+
+    def after_step(self, k: int, t_next: float) -> None:
+        if self.fired is not None:
+            return
+        value = lambda name: self._getters[name]()  # noqa: E731
+        for cond in self.conditions:
+            if cond.holds(t_next, value):
+                self.fired = {"condition": cond.text, "t": t_next}
+                self._ctx.request_stop(f"stop_on {cond.text!r} held at t = {t_next:.2f} s")
+                return
+
+    def close(self, outcome=None) -> dict:
+        return {"conditions": [c.text for c in self.conditions], "fired": self.fired}

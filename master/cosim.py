@@ -1,17 +1,12 @@
-"""The co-simulation master: fixed communication steps over FMU instances.
+"""The co-simulation master: fixed communication steps over FMU instances, with hooks around each.
 
-Ordering:
-* `jacobi` (default): every due instance reads its inputs from the outputs of
-  the previous communication point, then all step. Each connection therefore
-  carries a delay of one communication step of its source, recorded per
-  connection in the run's metadata.
-* `gauss-seidel`: instances step one after another in the order of the
-  scenario file; an instance reads the outputs its predecessors produced in
-  this same step (no delay on forward connections, one source step on
-  backward ones).
-
-Instances with `step_multiple = m` step every m base steps with step size
-m*h; others see their outputs held in between.
+A run instantiates the scenario's FMUs, binds every observed variable to a slot
+of one value table, opens the hooks (master.hooks: apps, serial and CAN
+gateways, the world and its sensor streams, the V2X air, the recorder) and then,
+per base step k: manipulators' before_step, the master algorithm
+(master.algorithm: Jacobi or Gauss-Seidel), observers' after_step. Every hook
+closes with the run's outcome, whatever happened, and the run folder keeps what
+was recorded.
 """
 from __future__ import annotations
 
@@ -21,39 +16,34 @@ import shutil
 import signal
 import time
 from array import array
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from bridges.timesync.errors import TimeSyncError
 from master import __version__
 from master.errors import DeadlineMissError, SimulationError
-from master.fmu_runtime import FmuInstance
-from master.pacing import Pacer
-from master.events import EventLog
-from master.participants import ParticipantBridge
-from master.radio_bridge import RadioBridge
-from master.streams import SensorStreams
-from master.recorder import METADATA, RunRecorder
-from master.scenario import Scenario
+from master.algorithm import algorithm, read_outputs
 from master.can_bridge import CanBridge
+from master.collision import CollisionHook
+from master.conditions import StopConditions
+from master.fmu_runtime import FmuInstance
+from master.hooks import Hook, Member, Outcome, RunContext, open_order, overrides
+from master.metrics import METRICS, run_metrics, write_metrics
+from master.pacing import Pacer
+from master.participants import ParticipantBridge, open_run_bus
+from master.radio_bridge import RadioBridge
+from master.recorder import METADATA, RunRecorder
+from master.run_records import CameraArchive, TraceRecorder
+from master.scenario import Scenario
 from master.serial_bridge import SerialBridges
 from master.stats import percentiles
+from master.streams import SensorStreams
 
 
 class Interrupted(Exception):
     """SIGTERM/SIGINT during a run: stop, keep what was recorded."""
-
-
-@dataclass
-class _Member:
-    """An instance in the loop with its pre-bound input and output transfers."""
-
-    fmu: FmuInstance
-    multiple: int
-    inputs: list[tuple[Callable, list[int]]] = field(default_factory=list)  # (setter, source slots)
-    outputs: list[tuple[Callable, int, int]] = field(default_factory=list)  # (getter, first slot, end slot)
 
 
 @dataclass
@@ -89,8 +79,26 @@ def connection_delays(scenario: Scenario) -> list[dict[str, Any]]:
     return rows
 
 
+class RecorderHook(Hook):
+    """The last observer: the time-series row of t_next, after every other hook has acted."""
+
+    name = "recorder"
+
+    def __init__(self, recorder: RunRecorder, values: list[Any], slots: list[int]):
+        self.recorder, self.values, self.slots = recorder, values, slots
+
+    def after_step(self, k: int, t_next: float) -> None:
+        values = self.values
+        self.recorder.row(t_next, [values[s] for s in self.slots])
+
+
 class CoSimulation:
-    """Runs one scenario into one run folder."""
+    """Runs one scenario into one run folder.
+
+    The gateways and observers of the scenario's sections are hooks (master.hooks),
+    kept as attributes so that tests and tools can reach them (`cosim.serial.urls`)
+    or replace one before the run (`v2i snapshot` runs the world without sensors).
+    """
 
     def __init__(self, scenario: Scenario, run_dir: Path | None = None, quiet: bool = False):
         self.scenario = scenario
@@ -104,16 +112,43 @@ class CoSimulation:
             from master.world.world import WorldParticipant
 
             self.world = WorldParticipant(scenario.world, scenario.time.start)
-        self.streams = None  # master.streams.SensorStreams: world sensors published on the bus
-        self.radio = None  # master.radio_bridge.RadioBridge when the scenario has [v2x]
-        self.events = None  # master.events.EventLog of the bridges
+        self.radio = RadioBridge(scenario.v2x) if scenario.v2x is not None else None  # the V2X air ([v2x])
         # apps over a bus following the master's clock ([bridge], [participants.NAME])
         self.participants = ParticipantBridge(scenario.participants, scenario.time.mode, scenario.time.rtf,
                                               scenario.name, quiet,
                                               world=scenario.world.describe() if scenario.world else None)
+        # did the vehicles touch? (every scenario with a world of two or more vehicles)
+        self.collision = CollisionHook.for_scenario(scenario, "collision" in scenario.time.stop_on)
+        self.stop_conditions = StopConditions.for_scenario(scenario)  # [time] stop_on over signals
+        self.extra_hooks: list[Hook] = []  # observers added by tools and tests, after the scenario's own
+
+    def hooks(self) -> list[Hook]:
+        """The scenario's hooks in step order: manipulators (apps, serial, CAN), then observers.
+
+        Record keepers come first so they open before (and close after) the apps and the world
+        they listen to; they do nothing in the steps themselves.
+        """
+        sc = self.scenario
+        hooks: list[Hook] = []
+        if self.participants:
+            hooks.append(TraceRecorder())
+        if self.world is not None and sc.record_camera:
+            hooks.append(CameraArchive(self.world))
+        hooks += [h for h in (self.participants, self.serial, self.can) if h]
+        if self.world is not None:
+            if self.participants:  # the world's sensors reach the apps over the bus
+                hooks.append(SensorStreams.hook(self.world, sc.participants.bridge.camera_encoding))
+            hooks.append(self.world)
+        if self.radio is not None:
+            hooks.append(self.radio)
+        if self.collision is not None:
+            hooks.append(self.collision)
+        if self.stop_conditions is not None:
+            hooks.append(self.stop_conditions)
+        return hooks + list(self.extra_hooks)
 
     # -- set-up -------------------------------------------------------------
-    def _instantiate(self, members: dict[str, _Member]) -> None:
+    def _instantiate(self, members: dict[str, Member]) -> None:
         """Extract and instantiate every FMU into `members` (filled as it goes, so a
         failure part-way still lets the caller free the instances made so far)."""
         from fmpy import extract
@@ -128,10 +163,10 @@ class CoSimulation:
                     raise SimulationError(inst.name, t.start, "extract", f"{inst.path}: {exc}") from exc
                 self._tmp_dirs.append(unzipped[inst.path])
             fmu = FmuInstance(inst.name, inst.model_description, unzipped[inst.path])
-            members[inst.name] = _Member(fmu, inst.step_multiple)
+            members[inst.name] = Member(fmu, inst.step_multiple)
             fmu.instantiate(t.start, t.stop, {**inst.parameters, **inst.start})
 
-    def _bind(self, members: dict[str, _Member]) -> tuple[list[Any], list[int], list[str]]:
+    def _bind(self, members: dict[str, Member]) -> tuple[list[Any], list[int], list[str]]:
         """Give every observed variable a slot in one flat list and pre-bind the transfers."""
         sc = self.scenario
         observed: dict[str, list[str]] = {name: [] for name in members}
@@ -210,8 +245,10 @@ class CoSimulation:
             raise FileExistsError(f"run folder {self.run_dir} exists and is not empty; "
                                   "choose another --out (runs are never overwritten)")
         self.started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
-        members: dict[str, _Member] = {}
+        members: dict[str, Member] = {}
         recorder: RunRecorder | None = None
+        ctx: RunContext | None = None
+        opened: list[Hook] = []
         meta = self._metadata("running")
         compute = array("d")
         lags = array("d")
@@ -228,36 +265,25 @@ class CoSimulation:
             recorder.write_metadata(meta)
             for m in members.values():
                 m.fmu.exit_initialization()
-            if self.serial:
-                meta["serial"] = self.serial.open({n: (m.fmu, m.multiple) for n, m in members.items()},
-                                                  self.run_dir, t.start)
-                recorder.write_metadata(meta)
-            if self.can:
-                meta["can"] = self.can.open({n: (m.fmu, m.multiple) for n, m in members.items()},
-                                            self.run_dir, t.start, t.step)
-                recorder.write_metadata(meta)
-            if self.participants:
-                self.participants.serial_urls = dict(self.serial.urls)
-                recorder.write_metadata(meta)
-                meta["participants"] = self.participants.open(self.run_dir, t.start, t.step)
-                recorder.write_metadata(meta)
-            if self.world:
-                if self.participants.bus is not None:  # the world's sensors reach the apps over the bus
-                    self.streams = SensorStreams(self.participants.bus, sc.participants.bridge.camera_encoding)
-                    self.world.listeners.append(self.streams)
-                meta["world"] = self.world.open({n: m.fmu for n, m in members.items()}, t.start)
-                if self.streams is not None:
-                    self.streams.labels.update(self.world.world.scene.labels)
-            if sc.v2x is not None:
-                self.events = EventLog(self.run_dir)
-                self.radio = RadioBridge(sc.v2x, self.participants.bus, self.events)
-                meta["v2x"] = self.radio.open({n: m.fmu for n, m in members.items()}, t.start,
-                                              self.world.world if self.world else None)
-            self._read_outputs(members.values(), values)
+            ctx = RunContext(sc, self.run_dir, members, self.quiet)
+            if self.participants:  # the master owns the run's bus; hooks share it
+                ctx.prefix = self.participants.prefix
+                ctx.bus = open_run_bus(sc.participants.bridge, ctx.prefix)
+            hooks = self.hooks() + [RecorderHook(recorder, values, record_slots)]
+            for hook in open_order(hooks):
+                opened.append(hook)  # closed whatever happens from here on
+                section = hook.open(ctx)
+                if section is not None:
+                    meta[hook.name] = section
+                    recorder.write_metadata(meta)
+            read_outputs(members.values(), values)
             recorder.row(t.start, [values[s] for s in record_slots])
+            recorder.write_metadata(meta)
 
+            befores = [h.before_step for h in hooks if overrides(h, "before_step")]
+            afters = [h.after_step for h in hooks if overrides(h, "after_step")]
+            step = algorithm(t.ordering)
             ordered = list(members.values())
-            gauss_seidel = t.ordering == "gauss-seidel"
             progress = self._progress(t)
             n, h, start = t.n_steps, t.step, t.start
             wall0 = time.perf_counter()
@@ -266,35 +292,13 @@ class CoSimulation:
             for k in range(n):
                 lag = pacer.wait(k) if pacer else None
                 t_k = start + k * h
-                if self.participants:
-                    self.participants.before_step(k, t_k)
-                if self.serial:
-                    self.serial.before_step(k, t_k)
-                if self.can:
-                    self.can.before_step(k, t_k)
+                for before in befores:
+                    before(k, t_k)
                 c0 = time.perf_counter()
-                due = [m for m in ordered if k % m.multiple == 0]
-                if gauss_seidel:
-                    for m in due:
-                        self._set_inputs(m, values)
-                        m.fmu.do_step(t_k, m.multiple * h)
-                        self._read_outputs((m,), values)
-                else:
-                    for m in due:
-                        self._set_inputs(m, values)
-                    for m in due:
-                        m.fmu.do_step(t_k, m.multiple * h)
-                    self._read_outputs(due, values)
+                step(k, t_k, h, ordered, values)
                 t_next = start + (k + 1) * h
-                if self.serial:
-                    self.serial.after_step(k, t_next)
-                if self.can:
-                    self.can.after_step(k, t_next)
-                if self.world:
-                    self.world.after_step(k, t_next)
-                if self.radio is not None:
-                    self.radio.after_step(k, t_next)
-                recorder.row(t_next, [values[s] for s in record_slots])
+                for after in afters:
+                    after(k, t_next)
                 steps_done = k + 1
                 c1 = time.perf_counter()
                 compute.append(c1 - c0)
@@ -304,6 +308,9 @@ class CoSimulation:
                 recorder.timing(k, t_k, c1 - c0, lag, miss)
                 if progress is not None and (k & 63) == 0:
                     self._tick(progress, t_next - start, c1 - wall0)
+                if ctx.stop_reason is not None:
+                    status = "stopped"
+                    break
         except SimulationError as exc:
             status, error = "failed", str(exc)
             meta.update(failed_instance=exc.instance, failed_time_s=exc.time, failed_call=exc.call)
@@ -321,26 +328,28 @@ class CoSimulation:
             wall = time.perf_counter() - wall0
             if progress is not None:
                 progress.close()
-            if self.radio is not None:
-                meta["v2x"] = {**self.radio.close(), "events": self.events.close()}
-            if self.streams is not None:
-                meta["streams"] = self.streams.report()
-            if self.participants:
-                meta["participants"] = self.participants.close(status, error)
-            if self.serial:
-                meta["serial"] = self.serial.close()
-            if self.can:
-                meta["can"] = self.can.close()
-            if self.world:
-                meta["world"] = self.world.close()
+            sim_elapsed = steps_done * t.step
+            outcome = Outcome(status, error, steps_done, t.start + sim_elapsed,
+                              ctx.stop_reason if ctx is not None else None)
+            for hook in reversed(opened):
+                section = self._close_hook(hook, outcome)
+                if section is not None:
+                    meta[hook.name] = section
+            if ctx is not None:
+                events = ctx.close_events()
+                if events is not None:
+                    meta["events"] = events
+                if ctx.bus is not None:
+                    ctx.bus.close()
             for m in members.values():
                 m.fmu.close()
             for d in self._tmp_dirs:
                 shutil.rmtree(d, ignore_errors=True)
             self._restore_sigterm(previous_handler)
-            sim_elapsed = steps_done * t.step
             meta.update(status=status, error=error, steps_done=steps_done, sim_time_reached_s=t.start + sim_elapsed,
                         wall_time_s=wall, rtf=self._rtf_stats(sim_elapsed, wall, compute, t.step))
+            if outcome.stop_reason is not None:
+                meta["stop_reason"] = outcome.stop_reason
             meta["step_compute_s"] = percentiles(compute)
             if pacer:
                 meta["realtime"].update(lag_s=percentiles(lags), deadline_misses=pacer.misses,
@@ -348,6 +357,10 @@ class CoSimulation:
             if recorder is not None:
                 recorder.close()
                 meta["parquet"] = recorder.write_parquet() or "timeseries.parquet"
+                metrics = run_metrics(self.run_dir, meta)
+                if metrics is not None:  # the verdict: collision, gaps, the latency chain
+                    write_metrics(self.run_dir, metrics)
+                    meta["metrics"] = METRICS
                 recorder.write_metadata(meta)
             elif error is not None or status != "completed":
                 # failed before the run folder opened: still leave a trace of why
@@ -356,15 +369,12 @@ class CoSimulation:
         return RunResult(self.run_dir, status, meta, error)
 
     @staticmethod
-    def _set_inputs(member: _Member, values: list[Any]) -> None:
-        for setter, slots in member.inputs:
-            setter([values[s] for s in slots])
-
-    @staticmethod
-    def _read_outputs(members, values: list[Any]) -> None:
-        for m in members:
-            for getter, first, end in m.outputs:
-                values[first:end] = getter()
+    def _close_hook(hook: Hook, outcome: Outcome) -> dict[str, Any] | None:
+        """Close one hook; a hook that fails to close is noted, and the others still close."""
+        try:
+            return hook.close(outcome)
+        except Exception as exc:  # noqa: BLE001 -- the run's records matter more than one hook's tidy-up
+            return {"close_error": f"{type(exc).__name__}: {exc}"}
 
     @staticmethod
     def _rtf_stats(sim_elapsed: float, wall: float, compute: array, h: float) -> dict[str, Any]:

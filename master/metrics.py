@@ -31,7 +31,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any, Iterable
 
-from bridges.v2x import CAN_APPLIED, CAN_COMMAND, FRAME, STAGES, stage_ms, stamp_ns, stamp_s
+from bridges.v2x import CAN_APPLIED, CAN_COMMAND, STAGES, stage_ms, stamp_ns, stamp_s
 from master.stats import percentiles
 
 METRICS = "metrics.json"
@@ -165,3 +165,53 @@ def write_metrics(run_dir: Path, metrics: dict[str, Any]) -> Path:
     tmp.write_text(json.dumps(metrics, indent=2, default=str) + "\n")
     tmp.replace(path)
     return path
+
+
+# -- one run ----------------------------------------------------------------------------------------------
+AOI_DT_S = 0.01
+
+
+def run_metrics(run_dir: Path, meta: dict[str, Any]) -> dict[str, Any] | None:
+    """metrics.json of a run folder from its records (None when the run has none of the pieces).
+
+    The collision fields come from the collision check's section of metadata.json;
+    latency from trace.jsonl joined with can-applied.csv; pdr, ipg and age of
+    information from the air's events in events.jsonl.
+    """
+    run_dir = Path(run_dir)
+    collision = meta.get("collision")
+    traces = read_jsonl(run_dir / TRACE)
+    events = read_jsonl(run_dir / "events.jsonl")
+    if collision is None and not traces and not any(e.get("event", "").startswith("v2x_") for e in events):
+        return None
+    out: dict[str, Any] = {"scenario": meta.get("scenario"), "status": meta.get("status"),
+                           "stop_reason": meta.get("stop_reason")}
+    if collision is not None:
+        out.update(collision)
+    out["latency_ms"] = latency_metrics(traces, applied_times(read_csv(run_dir / "can-applied.csv")))
+    out["pdr"], out["ipg_ms"] = link_metrics(events)
+    out["aoi_ms"] = _aoi(events, meta.get("sim_time_reached_s") or 0.0)
+    out["time_mode"] = meta.get("mode")
+    out["latency_policy"] = _policy(run_dir)
+    return out
+
+
+def _aoi(events: list[dict[str, Any]], t_end: float) -> dict[str, Any]:
+    """Age of information per "receiver<-subject" (when the air tied frames to a vehicle) and per link."""
+    out: dict[str, Any] = {}
+    pairs = {(e["to"], e["subject"]) for e in events
+             if e.get("event") == "v2x_delivered" and e.get("subject") and "to" in e}
+    for receiver, subject in sorted(pairs):
+        out[f"{receiver}<-{subject}"] = aoi_metrics(subject_deliveries(events, receiver, subject), t_end, AOI_DT_S)
+    return out
+
+
+def _policy(run_dir: Path) -> str | None:
+    """The lockstep latency policy of the run's [bridge] table (scenario.resolved.toml); None without apps."""
+    import tomllib
+
+    path = run_dir / "scenario.resolved.toml"
+    try:
+        return tomllib.loads(path.read_text()).get("bridge", {}).get("latency")
+    except (OSError, ValueError):
+        return None

@@ -33,10 +33,11 @@ import numpy as np
 from bridges.v2x import STAGES, stage_ms
 from master.collision import Body
 from master.metrics import METRICS, TRACE, applied_times, read_csv, read_jsonl, with_can_applied
+from master.run_records import CAMERA_DIR
+from master.verdict import verdict_lines
 
 REPORT = "report.html"
 CLIP = "camera.mp4"
-CAMERA_DIR = "camera"
 DETECTIONS = "detections"  # kind of the RSU app's per-frame trace records drawn on the clip
 _COLOURS = ["#1f5fbf", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf"]
 
@@ -120,31 +121,6 @@ def _json(path: Path) -> dict[str, Any]:
         return json.loads(path.read_text())
     except (OSError, ValueError):
         return {}
-
-
-# -- the verdict ------------------------------------------------------------------------------------------
-def verdict_lines(metrics: dict[str, Any]) -> list[str]:
-    """The one-glance verdict (also printed at the end of `v2i run`)."""
-    if not metrics:
-        return []
-    out = []
-    if "collision" in metrics:
-        if metrics["collision"]:
-            fc = metrics.get("first_collision") or {}
-            pair = " and ".join(fc.get("pair", []))
-            out.append(f"collision: true — {pair} touch at t = {metrics['first_collision_s']:.2f} s"
-                       + (f", {fc['relative_speed_mps']:.1f} m/s relative" if fc.get("relative_speed_mps") else ""))
-        else:
-            out.append("collision: false")
-        gap, ttc, pet = metrics.get("min_gap_m"), metrics.get("min_ttc_s"), metrics.get("pet_s")
-        out.append("min gap " + (f"{gap:.2f} m" if gap is not None else "n/a")
-                   + ", min TTC " + (f"{ttc:.2f} s" if ttc is not None else "n/a")
-                   + ", PET " + (f"{pet:.2f} s" if pet is not None else "n/a"))
-    e2e = metrics.get("latency_ms", {}).get("e2e", {})
-    if e2e.get("n"):
-        out.append(f"E2E latency p50 {e2e['p50']:.1f} ms, p99 {e2e['p99']:.1f} ms (n = {e2e['n']}; "
-                   f"{metrics.get('time_mode', '?')}, {metrics.get('latency_policy', '?')} latency policy)")
-    return out
 
 
 # -- plots -----------------------------------------------------------------------------------------------

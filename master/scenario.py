@@ -7,7 +7,6 @@ so a bad file is fixed in one pass and never half-runs.
 """
 from __future__ import annotations
 
-import math
 import os
 import re
 import tomllib
@@ -17,12 +16,19 @@ from typing import Any
 
 from master.errors import ScenarioError
 from master.fmu_variables import check_value, family, unsupported_reason
+from master.sections import SectionContext, read_sections, section_keys
+from master.conditions import COLLISION, ConditionError, compile_condition, signals_of
+from master.tables import Table, suggest
 
 MODES = ("lockstep", "realtime")
 ORDERINGS = ("jacobi", "gauss-seidel")
 OVERRUN_POLICIES = ("catch-up", "skip", "slip", "abort")
-_TOP_KEYS = ("scenario", "time", "fmus", "connections", "record", "serial", "world", "bridge", "participants", "can", "v2x")
-_TIME_KEYS = ("start", "stop", "step", "mode", "ordering", "rtf", "overrun")
+_CORE_KEYS = ("scenario", "time", "fmus", "connections", "record")  # the rest: master.sections
+_TOP_KEYS = _CORE_KEYS + section_keys()
+# an unknown key in a core table that is a top-level key was most likely written after a [table] header
+_MOVED = {k: f"in TOML a key after a [table] header belongs to that table: move `{k} = ...` above the first [table]"
+          for k in _TOP_KEYS}
+_TIME_KEYS = ("start", "stop", "step", "mode", "ordering", "rtf", "overrun", "stop_on")
 _INSTANCE_KEYS = ("fmu", "parameters", "start", "step_multiple")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _CONNECTION = re.compile(r"^\s*([^.\s]+)\.(\S+)\s*->\s*([^.\s]+)\.(\S+)\s*$")
@@ -37,6 +43,7 @@ class TimeSettings:
     ordering: str = "jacobi"
     rtf: float = 1.0
     overrun: str = "catch-up"
+    stop_on: tuple[str, ...] = ()  # "collision" and conditions over signals (master.conditions)
 
     @property
     def n_steps(self) -> int:
@@ -79,6 +86,7 @@ class Scenario:
     connections: list[Connection]
     record: list[tuple[str, str]]  # (instance, variable)
     raw: dict[str, Any]
+    record_camera: bool = False  # [record] camera: keep every camera frame (JPEG) for the report's clip
     serial: dict[str, Any] = field(default_factory=dict)  # name -> master.serial_bridge.SerialSpec
     world: Any = None  # master.world.layout.WorldLayout when the file has a [world] table
     participants: Any = None  # master.participants.ParticipantsSpec when the file has [bridge]/[participants]
@@ -91,14 +99,16 @@ class Scenario:
         return {
             "scenario": {"name": self.name, "description": self.description, "source": str(self.path)},
             "time": {"start": t.start, "stop": t.stop, "step": t.step, "mode": t.mode,
-                     "ordering": t.ordering, "rtf": t.rtf, "overrun": t.overrun},
+                     "ordering": t.ordering, "rtf": t.rtf, "overrun": t.overrun,
+                     **({"stop_on": list(t.stop_on)} if t.stop_on else {})},
             "fmus": {
                 i.name: {"fmu": str(i.path), "step_multiple": i.step_multiple,
                          "parameters": dict(i.parameters), "start": dict(i.start)}
                 for i in self.instances.values()
             },
             "connections": [str(c) for c in self.connections],
-            "record": {"variables": [f"{i}.{v}" for i, v in self.record]},
+            "record": {"variables": [f"{i}.{v}" for i, v in self.record],
+                       **({"camera": True} if self.record_camera else {})},
             **({"serial": {n: s.resolved() for n, s in self.serial.items()}} if self.serial else {}),
             **({"world": self.world.resolved()} if self.world is not None else {}),
             **({"can": self.can.resolved()} if self.can is not None else {}),
@@ -171,128 +181,86 @@ class _Validator:
     def problem(self, key: str, message: str) -> None:
         self.problems.append(f"{key}: {message}")
 
-    def table(self, parent: dict, key: str, dotted: str) -> dict:
-        value = parent.get(key, {})
-        if not isinstance(value, dict):
-            self.problem(dotted, f"expected a table, got {type(value).__name__}")
-            return {}
-        return value
-
-    def unknown_keys(self, table: dict, allowed: tuple[str, ...], prefix: str) -> None:
-        for key in table:
-            if key not in allowed:
-                where = f"{prefix}.{key}" if prefix else key
-                hint = ""
-                if prefix and key in _TOP_KEYS:
-                    hint = (f"; in TOML a key after a [table] header belongs to that table: "
-                            f"move `{key} = ...` above the first [table]")
-                self.problem(where, f"unknown key (expected one of: {', '.join(allowed)}){hint}")
-
-    # -- sections ----------------------------------------------------------
     def validate(self) -> Scenario:
+        """The core tables here, then each section present through its own reader (master.sections)."""
         raw = self.raw
-        self.unknown_keys(raw, _TOP_KEYS, "")
-        meta = self.table(raw, "scenario", "scenario")
-        self.unknown_keys(meta, ("name", "description", "source"), "scenario")
+        top = Table(raw, "", self.problem)
+        top.unknown_keys(_TOP_KEYS)
+        meta = top.sub("scenario")
+        meta.unknown_keys(("name", "description", "source"), _MOVED)
         name = meta.get("name", self.path.stem)
         description = meta.get("description", "")
         for key, value in (("name", name), ("description", description)):
             if not isinstance(value, str):
-                self.problem(f"scenario.{key}", f"expected a string, got {type(value).__name__}")
-        time = self.time_settings(self.table(raw, "time", "time"))
-        instances = self.instances(self.table(raw, "fmus", "fmus"), time)
+                meta.problem(key, f"expected a string, got {type(value).__name__}")
+        time = self.time_settings(top.sub("time"))
+        instances = self.instances(top.sub("fmus"), time)
         connections = self.connections(raw.get("connections", []), instances)
-        record = self.record(self.table(raw, "record", "record"), instances)
-        serial = {}
-        if "serial" in raw:
-            from master.serial_bridge import parse_serial
-
-            serial = parse_serial(raw["serial"], instances, connections, self.problem)
-        world = None
-        if "world" in raw:
-            from master.world.layout import parse_world
-
-            world = parse_world(raw["world"], instances, self.problem)
-        participants = None
-        if "bridge" in raw or "participants" in raw:
-            from master.participants import parse_participants
-
-            participants = parse_participants(raw.get("bridge"), raw.get("participants"), self.path.parent,
-                                              self.problem)
-        can = None
-        if "can" in raw:
-            from master.can_bridge import parse_can
-
-            can = parse_can(raw["can"], instances, connections=connections, step=time.step,
-                            base_dir=self.path.parent, path=self.path, problem=self.problem)
-        v2x = None
-        if "v2x" in raw:
-            from master.radio_bridge import parse_v2x
-
-            v2x = parse_v2x(raw["v2x"], instances, self.problem)
-            if "bridge" not in raw:
-                self.problem("v2x", "needs a [bridge] table: apps transmit and receive over the bus")
+        record_table = top.sub("record")
+        record = self.record(record_table, instances)
+        record_camera = record_table.boolean("camera", False)
+        self.stop_conditions(time, instances)
+        sections = read_sections(SectionContext(self.path, raw, instances, connections, time, self.problem))
+        if record_camera and "world" not in raw:
+            self.problem("record.camera", "needs a [world] with cameras to record")
+        if COLLISION in time.stop_on and not isinstance(raw.get("world"), dict):
+            self.problem("time.stop_on", "\"collision\" needs a [world] whose vehicles give the footprints")
         if self.problems:
             raise ScenarioError(self.path, self.problems)
         return Scenario(self.path, str(name), str(description), time, instances, connections, record, raw,
-                        serial=serial, world=world, participants=participants, can=can, v2x=v2x)
+                        record_camera, **sections)
 
-    def number(self, table: dict, key: str, dotted: str, default: float, positive: bool = False) -> float:
-        value = table.get(key, default)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            self.problem(dotted, f"expected a finite number, got {value!r}")
-            return default
-        if positive and value <= 0:
-            self.problem(dotted, f"must be > 0, got {value!r}")
-            return default
-        return float(value)
+    def stop_conditions(self, time: TimeSettings, instances: dict[str, Instance]) -> None:
+        """Each `[time] stop_on` entry: the word "collision" or a condition over signals that compiles."""
+        signals, positions = signals_of(instances)
+        for i, text in enumerate(time.stop_on):
+            if text == COLLISION:
+                continue
+            try:
+                compile_condition(text, signals, positions)
+            except ConditionError as exc:
+                self.problem(f"time.stop_on[{i}]", str(exc))
 
-    def choice(self, table: dict, key: str, dotted: str, choices: tuple[str, ...], default: str) -> str:
-        value = table.get(key, default)
-        if value not in choices:
-            self.problem(dotted, f"expected one of {', '.join(choices)}, got {value!r}")
-            return default
-        return value
-
-    def time_settings(self, t: dict) -> TimeSettings:
-        self.unknown_keys(t, _TIME_KEYS, "time")
+    def time_settings(self, t: Table) -> TimeSettings:
+        t.unknown_keys(_TIME_KEYS, _MOVED)
         d = TimeSettings()
         s = TimeSettings(
-            start=self.number(t, "start", "time.start", d.start),
-            stop=self.number(t, "stop", "time.stop", d.stop),
-            step=self.number(t, "step", "time.step", d.step, positive=True),
-            mode=self.choice(t, "mode", "time.mode", MODES, d.mode),
-            ordering=self.choice(t, "ordering", "time.ordering", ORDERINGS, d.ordering),
-            rtf=self.number(t, "rtf", "time.rtf", d.rtf, positive=True),
-            overrun=self.choice(t, "overrun", "time.overrun", OVERRUN_POLICIES, d.overrun),
+            start=t.number("start", d.start),
+            stop=t.number("stop", d.stop),
+            step=t.number("step", d.step, low=0, low_open=True),
+            mode=t.choice("mode", MODES, d.mode),
+            ordering=t.choice("ordering", ORDERINGS, d.ordering),
+            rtf=t.number("rtf", d.rtf, low=0, low_open=True),
+            overrun=t.choice("overrun", OVERRUN_POLICIES, d.overrun),
+            stop_on=tuple(t.strings("stop_on", [], one=True, expected='a list such as ["collision", "cav.v < 0.1"]')
+                          or ()),
         )
         if s.stop <= s.start:
-            self.problem("time.stop", f"must be greater than time.start ({s.start}), got {s.stop}")
+            t.problem("stop", f"must be greater than time.start ({s.start}), got {s.stop}")
         elif abs((s.stop - s.start) / s.step - s.n_steps) > 1e-6:
-            self.problem("time.stop", f"stop - start = {s.stop - s.start} s is not a whole number of "
-                                      f"{s.step} s steps")
+            t.problem("stop", f"stop - start = {s.stop - s.start} s is not a whole number of {s.step} s steps")
         return s
 
-    def instances(self, fmus: dict, time: TimeSettings) -> dict[str, Instance]:
+    def instances(self, fmus: Table, time: TimeSettings) -> dict[str, Instance]:
         from fmpy import platform as fmpy_platform
         from fmpy import platform_tuple as fmpy_platform_tuple
         from fmpy import read_model_description, supported_platforms
 
-        if not fmus:
-            self.problem("fmus", "no FMU instances: add at least one [fmus.NAME] table")
+        if not fmus.raw:
+            fmus.problem(None, "no FMU instances: add at least one [fmus.NAME] table")
         result = {}
-        for name, spec in fmus.items():
-            key = f"fmus.{name}"
+        for name in fmus.raw:
+            key = fmus.key(name)
             if not _NAME.match(name):
-                self.problem(key, "instance names must be identifiers (letters, digits, _; no dots)")
+                fmus.problem(name, "instance names must be identifiers (letters, digits, _; no dots)")
                 continue
-            if not isinstance(spec, dict):
-                self.problem(key, f"expected a table, got {type(spec).__name__}")
+            spec = fmus.sub(name)
+            if not spec.ok:
                 continue
-            self.unknown_keys(spec, _INSTANCE_KEYS, key)
-            fmu = spec.get("fmu")
-            if not isinstance(fmu, str) or not fmu:
-                self.problem(f"{key}.fmu", "required: an FMU file path or a project FMU name (e.g. VehicleDynamics)")
+            spec.unknown_keys(_INSTANCE_KEYS, _MOVED)
+            fmu = spec.string("fmu", required=True,
+                              expected="an FMU file path or a project FMU name (e.g. VehicleDynamics)")
+            if fmu is None:
                 continue
             try:
                 fmu_path = resolve_fmu(fmu, self.path.parent)
@@ -308,31 +276,27 @@ class _Validator:
                 self.problem(f"{key}.fmu", f"{fmu_path.name} has no binary for this platform ({fmpy_platform}); "
                                            f"it supports: {', '.join(platforms) or 'none'}")
                 continue
-            multiple = spec.get("step_multiple", 1)
-            if isinstance(multiple, bool) or not isinstance(multiple, int) or multiple < 1:
-                self.problem(f"{key}.step_multiple", f"expected an integer >= 1, got {multiple!r}")
-                multiple = 1
-            elif time.n_steps % multiple:
-                self.problem(f"{key}.step_multiple", f"{multiple} does not divide the run's {time.n_steps} steps")
+            multiple = spec.number("step_multiple", 1, low=1, integer=True, expected="an integer >= 1")
+            if time.n_steps % multiple:
+                spec.problem("step_multiple", f"{multiple} does not divide the run's {time.n_steps} steps")
             if md.coSimulation.canBeInstantiatedOnlyOncePerProcess and any(
                     other.path == fmu_path for other in result.values()):
                 self.problem(key, f"{fmu_path.name} declares canBeInstantiatedOnlyOncePerProcess; "
                                   "it cannot have a second instance in this run")
                 continue
             inst = Instance(name, fmu, fmu_path, md, step_multiple=multiple)
-            inst.parameters = self.values(inst, self.table(spec, "parameters", f"{key}.parameters"),
-                                          f"{key}.parameters", parameters=True)
-            inst.start = self.values(inst, self.table(spec, "start", f"{key}.start"), f"{key}.start", parameters=False)
+            inst.parameters = self.values(inst, spec.sub("parameters"), parameters=True)
+            inst.start = self.values(inst, spec.sub("start"), parameters=False)
             result[name] = inst
         return result
 
-    def values(self, inst: Instance, table: dict, prefix: str, parameters: bool) -> dict[str, Any]:
-        variables, accepted = inst.variables, {}
-        for var_name, value in table.items():
-            key = f"{prefix}.{var_name}"
+    def values(self, inst: Instance, table: Table, parameters: bool) -> dict[str, Any]:
+        variables, accepted, prefix = inst.variables, {}, table.prefix
+        for var_name, value in table.raw.items():
+            key = table.key(var_name)
             var = variables.get(var_name)
             if var is None:
-                self.problem(key, f"unknown variable {var_name!r} of {inst.path.name} ({_suggest(var_name, variables)})")
+                self.problem(key, f"unknown variable {var_name!r} of {inst.path.name} ({suggest(var_name, variables)})")
                 continue
             if unsupported_reason(var):
                 self.problem(key, unsupported_reason(var))
@@ -393,7 +357,7 @@ class _Validator:
             return None
         var = inst.variables.get(var_name)
         if var is None:
-            self.problem(key, f"unknown variable {inst_name}.{var_name} ({_suggest(var_name, inst.variables)})")
+            self.problem(key, f"unknown variable {inst_name}.{var_name} ({suggest(var_name, inst.variables)})")
             return None
         if unsupported_reason(var):
             self.problem(key, unsupported_reason(var))
@@ -405,8 +369,8 @@ class _Validator:
             return None
         return var
 
-    def record(self, table: dict, instances: dict[str, Instance]) -> list[tuple[str, str]]:
-        self.unknown_keys(table, ("variables",), "record")
+    def record(self, table: Table, instances: dict[str, Instance]) -> list[tuple[str, str]]:
+        table.unknown_keys(("variables", "camera"), _MOVED)
         patterns = table.get("variables", [f"{name}.*" for name in instances])
         if not isinstance(patterns, list) or not all(isinstance(p, str) for p in patterns):
             self.problem("record.variables", "expected a list of \"instance.variable\" or \"instance.*\" strings")
@@ -432,18 +396,10 @@ class _Validator:
                     continue
                 names = [var_name]
             else:
-                self.problem(key, f"unknown variable {pattern!r} ({_suggest(var_name, inst.variables)})")
+                self.problem(key, f"unknown variable {pattern!r} ({suggest(var_name, inst.variables)})")
                 continue
             for n in names:
                 if (inst_name, n) not in chosen:
                     chosen.append((inst_name, n))
         return chosen
 
-
-def _suggest(name: str, variables: dict) -> str:
-    import difflib
-
-    close = difflib.get_close_matches(name, list(variables), n=3)
-    if close:
-        return "did you mean " + " or ".join(repr(c) for c in close) + "?"
-    return f"{len(variables)} variables; see `v2i info`"

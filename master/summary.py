@@ -3,8 +3,19 @@ from __future__ import annotations
 
 import csv
 
+import json
+
 from master.cosim import RunResult
+from master.metrics import METRICS
 from master.recorder import TIMESERIES
+from master.verdict import realtime_warning, verdict_lines
+
+
+def _metrics(result: RunResult) -> dict:
+    try:
+        return json.loads((result.run_dir / METRICS).read_text()) if result.metadata.get("metrics") else {}
+    except (OSError, ValueError):
+        return {}
 
 
 def format_summary(result: RunResult, max_rows: int = 16) -> str:
@@ -22,6 +33,14 @@ def format_summary(result: RunResult, max_rows: int = 16) -> str:
         if lag["n"]:
             lines.append(f"  realtime lag p50 {lag['p50'] * 1e3:.3f} ms, p99 {lag['p99'] * 1e3:.3f} ms, "
                          f"max {lag['max'] * 1e3:.3f} ms; deadline misses {rt['deadline_misses']}")
+    if meta.get("stop_reason"):
+        lines.append(f"  stopped: {meta['stop_reason']}")
+    metrics = _metrics(result)
+    for line in verdict_lines(metrics):
+        lines.append(f"  {line}")
+    rt_warning = realtime_warning(meta)
+    if rt_warning:
+        lines.append(f"  WARNING: {rt_warning}")
     lines.append(f"  run folder: {result.run_dir}")
     path = result.run_dir / TIMESERIES
     if not path.exists():
