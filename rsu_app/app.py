@@ -11,8 +11,10 @@ time, no I/O); this module wires it to the world:
    the geodetic origin, the Unix time of simulation time 0, the intersection
    and its signal heads;
 4. lockstep: per tick, the frames due (waiting, bounded, for a frame that is
-   due), the controller answers that arrived, `core.step(t)`, publish, ack;
-   realtime: the same on the simulation time read off the master's clock;
+   due), the controller answers that arrived, `core.step(t)`, publish (the
+   V2X frames, then the frames' "detections" trace records on trace/<name>
+   when `app.trace_detections`), ack; realtime: the same on the simulation
+   time read off the master's clock;
 5. at the end (the master ends the run, or SIGTERM): the JSON summary on stdout.
 """
 from __future__ import annotations
@@ -33,7 +35,7 @@ from bridges.geo import GeoOrigin
 from bridges.security import PSID_SPAT_MAP, PSID_SURROGATE_BSM
 from bridges.timesync.errors import JoinTimeout, MasterLost, Refused, TimeSyncError
 from bridges.timesync.participant import Participant, bus_from_env
-from bridges.v2x import EPOCH, tx_key
+from bridges.v2x import EPOCH, trace_key, tx_key
 from rsu_app.bsm_stage import BsmStage
 from rsu_app.camera import CameraIngest
 from rsu_app.config import ConfigError, Settings
@@ -109,6 +111,9 @@ class RsuApp:
         self.ticks = 0
         self.published = 0
         self.publish_errors = 0
+        self.traces_detections = self.detector is not None and settings.app.trace_detections
+        self.trace_records = 0
+        self.trace_errors = 0
         self.notes: list[str] = []
         self.ended = None
         self.exit_reason = ""
@@ -155,7 +160,8 @@ class RsuApp:
                 self.notes.append(f"no MAP: {exc}")
                 log.info("no MAP: %s", exc)
         return RsuCore(self.latency, perception, bsm, spat, map_stage, bsm_rate_hz=s.timing.bsm_rate_hz,
-                       spat_rate_hz=s.spat.rate_hz, map_rate_hz=s.map.rate_hz, realtime=not lockstep)
+                       spat_rate_hz=s.spat.rate_hz, map_rate_hz=s.map.rate_hz, realtime=not lockstep,
+                       trace_detections=self.traces_detections)
 
     # -- running ------------------------------------------------------------------------------------------
     def run(self) -> int:
@@ -178,7 +184,8 @@ class RsuApp:
                 self.link = ControllerLink(self.serial_url, s.spat.controller, s.spat.baud, s.spat.poll,
                                            s.spat.answer_timeout_s)
                 self.link.open()
-            self.part = Participant(self.bus, self.name, s.role, publishes=[tx_key(self.station)])
+            publishes = [tx_key(self.station)] + ([trace_key(self.name)] if self.traces_detections else [])
+            self.part = Participant(self.bus, self.name, s.role, publishes=publishes)
             self.welcome = self.part.join(timeout=s.bus.join_timeout_s)
             if self.link is not None:
                 self.link.start()
@@ -226,6 +233,7 @@ class RsuApp:
             frames = self.ingest.collect(tick.t, wait=True) if self.ingest is not None else []
             statuses = [(a.status, a.wire_bytes) for a in self.link.collect()] if self.link is not None else []
             self._publish(self.core.step(tick.t, frames, statuses))
+            self._trace(self.core.take_records())
             self.part.ack(tick, time.perf_counter() - c0)
             self.ticks += 1
             self.health.maybe_report()
@@ -243,6 +251,7 @@ class RsuApp:
             frames = self.ingest.newest_only(self.ingest.collect(float("inf"), wait=False)) if self.ingest else []
             statuses = [(a.status, a.wire_bytes) for a in self.link.collect()] if self.link is not None else []
             self._publish(self.core.step(now, frames, statuses))
+            self._trace(self.core.take_records())
             self.ticks += tick is not None
             self.health.maybe_report()
 
@@ -254,6 +263,18 @@ class RsuApp:
             except Exception as exc:  # a closed or broken bus: count, keep the run going
                 self.publish_errors += 1
                 log.warning("could not publish on %s: %s", tx.key, exc)
+
+    def _trace(self, records) -> None:
+        """Publish the frames' trace records on trace/<name>, each at its detect_end (when its detections were
+        known). A record that cannot go out is counted: the trace is for the report, the RSU keeps working."""
+        for rec in records:
+            try:
+                self.bus.publish(trace_key(self.name), json.dumps(rec, separators=(",", ":")).encode(),
+                                 rec["detect_end"])
+                self.trace_records += 1
+            except Exception as exc:
+                self.trace_errors += 1
+                log.debug("trace record not published: %s", exc)
 
     def _close(self) -> None:
         for thing in (self.link, self.ingest, self.part):
@@ -291,7 +312,9 @@ class RsuApp:
     def summary(self) -> dict:
         out = {"app": "rsu_app", "name": self.name, "station": self.station, "exit": self.exit_reason,
                "end": self.ended, "ticks": self.ticks, "published": self.published,
-               "publish_errors": self.publish_errors, "notes": self.notes}
+               "publish_errors": self.publish_errors, "notes": self.notes,
+               "trace": {"detections": self.traces_detections, "records": self.trace_records,
+                         "publish_errors": self.trace_errors}}
         if self.welcome is not None:
             out.update(mode=self.welcome.mode, latency_policy=self.welcome.latency_policy)
         if self.core is None:

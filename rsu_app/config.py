@@ -10,6 +10,8 @@ mean" for a misspelt one); the process then exits 2.
 Config file (all keys optional; `scenarios/apps/rsu.toml` is the case study's)::
 
     name = "rsu"                 # participant name (default $V2I_NAME, else "rsu")
+    [app]
+    trace_detections = true      # a trace record of each processed frame's boxes (the report's clip)
     [detector]
     backend = "onnx"
     [tracker]
@@ -51,6 +53,13 @@ class ConfigError(ValueError):
 def _key(help: str, flag: str | None = None, choices=None, low=None, high=None, positive=False, env=None):
     return {"help": help, "flag": flag, "choices": choices, "low": low, "high": high, "positive": positive,
             "env": env}
+
+
+@dataclass
+class AppSettings:
+    trace_detections: bool = field(default=True, metadata=_key(
+        "publish one \"detections\" trace record per processed camera frame on trace/<name> (boxes, labels, "
+        "scores, track and BSM ids): the run's trace.jsonl keeps it and `v2i report` draws it on the camera clip"))
 
 
 @dataclass
@@ -198,6 +207,7 @@ class Settings:
     seed: int | None = field(default=None, metadata=_key(
         "seed of the per-session salt of the BSMs' temporary ids (default: 0 in lockstep, random in realtime)",
         "--seed", low=0))
+    app: AppSettings = field(default_factory=AppSettings)
     bus: BusSettings = field(default_factory=BusSettings)
     camera: CameraSettings = field(default_factory=CameraSettings)
     detector: DetectorSettings = field(default_factory=DetectorSettings)

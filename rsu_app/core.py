@@ -20,6 +20,12 @@ data stamped <= t (lockstep + `fixed` latencies repeat bit for bit):
 At equal times READY comes before STATUS, FRAME and the slots, so a slot sees
 every detection ready by its time and a frame's projection sees the tracks
 known at its time.
+
+With `trace_detections`, each READY also leaves one "detections" trace record
+per frame it makes known (`perception_stage.detection_record`: boxes, labels,
+scores, tracks, BSM ids) in `records`, which the app drains with
+`take_records()` and publishes on trace/<app> at the record's detect_end.
+Building them reads the tracker and the BSM ids only: nothing sent changes.
 """
 from __future__ import annotations
 
@@ -31,7 +37,7 @@ from dataclasses import dataclass, field
 
 from rsu_app.bsm_stage import BsmStage, Transmission
 from rsu_app.camera import EPS, BusyGate
-from rsu_app.perception_stage import FrameResult, PerceptionStage
+from rsu_app.perception_stage import FrameResult, PerceptionStage, detection_record
 from rsu_app.timing import DETECT, LatencyModel
 
 log = logging.getLogger(__name__)
@@ -52,9 +58,11 @@ class RsuCore:
     def __init__(self, latency: LatencyModel, perception: PerceptionStage | None = None,
                  bsm: BsmStage | None = None, spat=None, map_stage=None, *, t0: float | None = None,
                  bsm_rate_hz: float = 10.0, spat_rate_hz: float = 10.0, map_rate_hz: float = 1.0,
-                 realtime: bool = False):
+                 realtime: bool = False, trace_detections: bool = False):
         self.latency, self.perception, self.bsm, self.spat, self.map = latency, perception, bsm, spat, map_stage
         self.realtime = realtime
+        self.trace_detections = trace_detections
+        self.records: list[dict] = []  # trace records not yet taken by the app, in detect_end order
         self.bsm_period = 1.0 / bsm_rate_hz
         self.gates: dict[str, BusyGate] = {}
         self.counters = CoreCounters()
@@ -116,6 +124,11 @@ class RsuCore:
         self.t = max(self.t, t)
         return out
 
+    def take_records(self) -> list[dict]:
+        """The trace records made since the last call (the app publishes them; nobody else keeps them)."""
+        records, self.records = self.records, []
+        return records
+
     def _next_slot(self, start: float, period: float, n: int, t: float) -> int:
         """The next slot's number. Realtime: a loop that fell behind skips the slots it missed (one late
         message per kind, never a burst of stale ones); lockstep never falls behind."""
@@ -163,9 +176,15 @@ class RsuCore:
             by_time.setdefault(r.t, []).append(r)
         for _, group in sorted(by_time.items()):
             self.perception.apply(group)
+        if self.trace_detections:
+            self.records += [detection_record(r, self._bsm_id) for r in results]
         if self._bsm_start is None and self.bsm is not None:
             self._bsm_start = when
             self._push(when, BSM, (when, 0))
+
+    def _bsm_id(self, track_id: int) -> str | None:
+        """The temporary id the BSMs of a track carry (None without a BSM stage: nothing is broadcast)."""
+        return self.bsm.bsm_id(track_id) if self.bsm is not None else None
 
     # -- stage 2 ------------------------------------------------------------------------------------------
     def _bsm_slot(self, t: float) -> list[Transmission]:

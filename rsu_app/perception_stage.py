@@ -24,6 +24,12 @@ sight is how a real track becomes a ghost.
 `apply(result)` folds the detections into the tracker at the frame's time and
 remembers, per track, the stamps of the last frame that saw it: the BSMs of a
 track carry those (FRAME, DETECT_START, DETECT_END).
+
+Each `FrameResult` also keeps every box above the threshold with what became of
+it (its ground detection, or why it was rejected) and, once applied, the track
+each detection updated or started: `detection_record` turns that into the
+frame's "detections" trace record (the report draws it on the camera clip).
+Nothing of it feeds back into tracking or the BSMs.
 """
 from __future__ import annotations
 
@@ -31,6 +37,7 @@ import logging
 import math
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -42,6 +49,18 @@ from rsu_app.perception.tracker import GroundDetection, Tracker, TrackerError, T
 
 log = logging.getLogger(__name__)
 HEADING_RADIUS = 3.0  # m: a track this close to a detection's rough ground point lends it its heading
+DETECTIONS = "detections"  # the kind of a frame's trace record (master/report.py draws these on the clip)
+
+
+@dataclass
+class BoxOutcome:
+    """One detector box above the threshold and what stage 1 made of it, kept for the frame's trace record."""
+
+    box: tuple[float, float, float, float]  # pixels (u0, v0, u1, v1), as the detector gave it
+    label: str
+    score: float
+    detection: int | None = None  # index of its ground detection in FrameResult.detections; None: rejected
+    rejected: str | None = None   # why it did not reach the tracker
 
 
 @dataclass
@@ -55,6 +74,15 @@ class FrameResult:
     detect_start: float = 0.0     # simulation times, set by the core
     detect_end: float = 0.0
     rejected: dict[str, int] = field(default_factory=dict)
+    objects: list[BoxOutcome] = field(default_factory=list)  # every box above the threshold
+    tracks: list[int | None] = field(default_factory=list)   # per detection, once applied: its track's id
+    confirmed: frozenset[int] = frozenset()  # of those tracks, the ones confirmed once the tracker learned them
+
+    def track_of(self, outcome: BoxOutcome) -> int | None:
+        """The id of the track a box's detection updated or started; None when rejected or not yet applied."""
+        if outcome.detection is None or outcome.detection >= len(self.tracks):
+            return None
+        return self.tracks[outcome.detection]
 
 
 @dataclass
@@ -136,37 +164,44 @@ class PerceptionStage:
             self.tracker.tracks else []
         height, width = frame.rgb.shape[:2]
         self.views[frame.camera] = (camera, width, height)
-        ground, rejected = [], {}
-
-        def reject(why: str) -> None:
-            rejected[why] = rejected.get(why, 0) + 1
-
+        ground, rejected, objects = [], {}, []
         for det in sorted(boxes, key=lambda d: -d.score):
-            try:
-                gx, gy = self._ground(det, camera, prior)
-            except (GeoError, ValueError) as exc:
-                reject("no ground point")
-                log.debug("frame %d: box %s: %s", frame.frame_id, det.box, exc)
-                continue
-            why = self.zone.reason_to_reject(gx, gy, camera.position[:2])
-            if why:
-                reject(why)
-                continue
-            if any(math.hypot(gx - g.x, gy - g.y) < self.merge_radius_m for g in ground):
-                reject("duplicate of a better box")
-                continue
-            u0, v0, u1, v1 = det.box
-            cut = min(u0, v0, width - u1, height - v1) <= self.border_px
-            if cut and not any(math.hypot(gx - s.x, gy - s.y) < HEADING_RADIUS + 2.0 for s in known):
-                reject("cut by the image border, no track near")
-                continue
-            ground.append(GroundDetection(gx, gy, det.label, float(det.score)))
+            outcome = BoxOutcome(tuple(float(c) for c in det.box), str(det.label), float(det.score))
+            placed = self._place(det, camera, prior, known, ground, (width, height))
+            if isinstance(placed, str):
+                outcome.rejected = placed
+                rejected[placed] = rejected.get(placed, 0) + 1
+            else:
+                outcome.detection = len(ground)
+                ground.append(placed)
+            objects.append(outcome)
         for k, v in rejected.items():
             self.rejected[k] = self.rejected.get(k, 0) + v
         compute = time.perf_counter() - c0
         self.compute_s.append(compute)
         return FrameResult(frame.camera, frame.frame_id, float(frame.t), ground, len(boxes), compute,
-                           rejected=rejected)
+                           rejected=rejected, objects=objects)
+
+    def _place(self, det: Detection, camera: CameraModel, prior: list[TrackState], known: list[TrackState],
+               ground: list[GroundDetection], size: tuple[int, int]) -> GroundDetection | str:
+        """One box on the ground as a detection for the tracker, or the reason it is not one (the zone, the
+        duplicate and the border rules, against the frame's better-scored boxes already in `ground`)."""
+        try:
+            gx, gy = self._ground(det, camera, prior)
+        except (GeoError, ValueError) as exc:
+            log.debug("box %s: no ground point: %s", det.box, exc)
+            return "no ground point"
+        why = self.zone.reason_to_reject(gx, gy, camera.position[:2])
+        if why:
+            return why
+        if any(math.hypot(gx - g.x, gy - g.y) < self.merge_radius_m for g in ground):
+            return "duplicate of a better box"
+        width, height = size
+        u0, v0, u1, v1 = det.box
+        cut = min(u0, v0, width - u1, height - v1) <= self.border_px
+        if cut and not any(math.hypot(gx - s.x, gy - s.y) < HEADING_RADIUS + 2.0 for s in known):
+            return "cut by the image border, no track near"
+        return GroundDetection(gx, gy, det.label, float(det.score))
 
     def in_view(self, x: float, y: float, height_m: float = 0.75) -> bool:
         """Whether a ground point (at a vehicle's mid height) projects inside some camera's image."""
@@ -204,6 +239,7 @@ class PerceptionStage:
             log.warning("tracker refused the detections of t = %.3f: %s", t, exc)
             return time.perf_counter() - c0
         self.detections += len(dets)
+        note_tracks(results, self.tracker.last_assignment, {s.id for s in states})
         latest = max(results, key=lambda r: r.detect_end)
         for s in states:
             if s.missed == 0:
@@ -212,6 +248,31 @@ class PerceptionStage:
         for tid in [k for k in self.track_stamps if k not in alive]:
             del self.track_stamps[tid]
         return time.perf_counter() - c0
+
+
+def note_tracks(results: list[FrameResult], assignment: list[int], confirmed: set[int]) -> None:
+    """Hand each frame its share of the tracker's association (its detections came in `results` order), so
+    its trace record can say which box became which track, and whether that track is confirmed."""
+    start = 0
+    for r in results:
+        r.tracks = list(assignment[start:start + len(r.detections)])
+        r.confirmed = frozenset(tid for tid in r.tracks if tid in confirmed)
+        start += len(r.detections)
+
+
+def detection_record(result: FrameResult, bsm_id: Callable[[int], str] | None = None) -> dict:
+    """The frame's "detections" trace record: every box above the threshold, in the frame's pixels, with its
+    label, score, track and the temporary id the BSMs of that track carry (`bsm_id(track)`; None while the
+    track is not confirmed, so not broadcast). Times are plain float seconds, never under "stamps": the
+    master's latency metrics read the stamps of trace records, and a record of boxes is no message."""
+    objects = []
+    for o in result.objects:
+        track = result.track_of(o)
+        broadcast = bsm_id is not None and track is not None and track in result.confirmed
+        objects.append({"box": list(o.box), "label": o.label, "score": o.score, "track": track,
+                        "bsm_id": bsm_id(track) if broadcast else None, "rejected": o.rejected})
+    return {"kind": DETECTIONS, "camera": result.camera, "frame_id": int(result.frame_id), "t": float(result.t),
+            "detect_start": float(result.detect_start), "detect_end": float(result.detect_end), "objects": objects}
 
 
 def covariance_ellipse(cov: np.ndarray) -> tuple[float, float, float]:

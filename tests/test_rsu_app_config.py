@@ -147,3 +147,17 @@ def test_a_started_app_with_a_bad_config_fails_the_run_naming_it(tmp_path, fmu_d
     assert "rsu" in r.stderr + r.stdout and "exited with code 2" in r.stderr + r.stdout
     log = (tmp_path / "out" / "participant-rsu.log").read_text()
     assert "tracker.motion: expected one of cv, ctrv, got 'ctrw' (did you mean 'ctrv'?)" in log
+
+
+def test_the_detections_trace_switch_defaults_on_and_a_misspelt_key_is_named():
+    base = {"security": {"mode": "unsecured"}}
+    assert build_settings({}, base, {}).app.trace_detections is True
+    assert build_settings({"app.trace_detections": "false"}, base, {}).app.trace_detections is False
+    assert build_settings({}, {**base, "app": {"trace_detections": False}}, {}).app.trace_detections is False
+    with pytest.raises(ConfigError) as err:
+        build_settings({}, {**base, "app": {"trace_detection": True}}, {})
+    assert err.value.problems == [("app.trace_detection", "unknown key (did you mean 'trace_detections'?) "
+                                                          "(known in [app]: trace_detections)")]
+    with pytest.raises(ConfigError) as err:
+        build_settings({}, {**base, "app": {"trace_detections": "yes"}}, {})
+    assert err.value.problems[0][0] == "app.trace_detections" and "expected true or false" in err.value.problems[0][1]

@@ -8,6 +8,7 @@ and deterministically, without rendering. The process tests
 """
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 
@@ -30,7 +31,7 @@ from rsu_app.envelope import Envelope
 from rsu_app.intersection_map import intersection_geometry
 from rsu_app.perception.detector import Detection
 from rsu_app.perception.geo import VEHICLE_SIZE, _box_corners
-from rsu_app.perception.tracker import Tracker, TrackerConfig
+from rsu_app.perception.tracker import GroundDetection, Tracker, TrackerConfig, TrackerError
 from rsu_app.perception_stage import DetectionZone, PerceptionStage, covariance_ellipse
 from rsu_app.spat_stage import MapStage, SpatStage
 from rsu_app.timing import LatencyModel
@@ -84,10 +85,11 @@ class Oracle:
 
     def __init__(self):
         self.calls = 0
+        self.seen: dict[float, list[Detection]] = {}  # frame time -> the boxes it gave
 
     def detect(self, rgb: Pixels):
         self.calls += 1
-        out = []
+        out = self.seen[rgb.t] = []
         for v in rgb.vehicles:
             if rgb.t > v.until:
                 continue
@@ -103,19 +105,20 @@ class Oracle:
 
 
 def make_core(policy="fixed", latencies=None, inference_s=None, vehicles=(CAV, EV), hits=3, max_missed=5,
-              spat=None, map_stage=None):
+              spat=None, map_stage=None, trace=False):
     latency = LatencyModel("lockstep", policy, latencies if latencies is not None else
                            {"detect": 0.05, "encode": 0.001, "sign": 0.002}, inference_s)
     oracle = Oracle()
     perception = PerceptionStage(oracle, Tracker(TrackerConfig(confirm_hits=hits, max_missed=max_missed)),
                                  DetectionZone(60.0, INTERSECTION, True, 1.5), 0.5)
     bsm = BsmStage("rsu", ORIGIN, EPOCH, b"seed-salt", Envelope(None), latency)
-    core = RsuCore(latency, perception, bsm, spat, map_stage)
+    core = RsuCore(latency, perception, bsm, spat, map_stage, trace_detections=trace)
     return core, oracle, list(vehicles)
 
 
-def run(core, vehicles, stop=4.0, step=0.01, rate=10.0):
-    """Drive the core like the master: a tick every step, a frame every 1/rate, seen at its tick."""
+def run(core, vehicles, stop=4.0, step=0.01, rate=10.0, records=None):
+    """Drive the core like the master: a tick every step, a frame every 1/rate, seen at its tick; the trace
+    records it makes go to `records` (taken after every step, as the app does)."""
     out, frame_id = [], 0
     for k in range(int(round(stop / step)) + 1):
         t = round(k * step, 9)
@@ -124,6 +127,8 @@ def run(core, vehicles, stop=4.0, step=0.01, rate=10.0):
             frames.append(FakeFrame("rsu_cam", frame_id, t, Pixels(t, vehicles)))
             frame_id += 1
         out += core.step(t, frames)
+        if records is not None:
+            records += core.take_records()
     return out
 
 
@@ -240,6 +245,126 @@ def test_position_accuracy_is_the_covariance_ellipse():
     assert (major, minor, orientation) == pytest.approx((2.0, 1.0, 90.0))  # the long axis points east
     major, minor, orientation = covariance_ellipse(np.array([[1.0, 0.0], [0.0, 9.0]]))
     assert (major, minor) == pytest.approx((3.0, 1.0)) and orientation in (pytest.approx(0.0), pytest.approx(180.0))
+
+
+# -- the frames' "detections" trace records --------------------------------------------------------------
+def test_the_tracker_tells_which_track_each_detection_updated_or_started():
+    tr = Tracker(TrackerConfig(confirm_hits=1))
+    tr.update(0.0, [GroundDetection(0.0, 0.0), GroundDetection(30.0, 0.0)])
+    assert tr.last_assignment == [1, 2]
+    # the same two vehicles 0.1 s later, given in the other order, and a third far from both
+    states = tr.update(0.1, [GroundDetection(30.8, 0.0), GroundDetection(0.0, 40.0), GroundDetection(0.8, 0.0)])
+    assert tr.last_assignment == [2, 3, 1]
+    by_id = {s.id: s for s in states}
+    assert by_id[2].x > 30.0 and by_id[1].x > 0.0  # each moved toward the detection said to have updated it
+    with pytest.raises(TrackerError):
+        tr.update(0.05, [GroundDetection(1.0, 0.0)])  # time going backwards: nothing is associated
+    assert tr.last_assignment == []
+
+
+def test_one_detections_record_per_processed_frame_made_when_its_detections_are_ready():
+    core, oracle, vehicles = make_core(latencies={"detect": 0.3, "encode": 0.001, "sign": 0.002}, trace=True)
+    records: list[dict] = []
+    run(core, vehicles, stop=2.0, records=records)
+    assert [r["frame_id"] for r in records] == [0, 3, 6, 9, 12, 15]  # frame 18 is ready at 2.1 s
+    core.step(2.2)
+    records += core.take_records()
+    # busy 0.3 s after each frame it takes: the 14 frames dropped meanwhile leave no record
+    assert core.counters.frames_dropped_busy == 14 and len(records) == oracle.calls == 7
+    assert core.take_records() == []  # taken once
+    for r in records:
+        assert r["kind"] == "detections" and r["camera"] == "rsu_cam" and "stamps" not in r
+        assert r["t"] == pytest.approx(r["frame_id"] * 0.1)
+        assert r["detect_start"] == r["t"] and r["detect_end"] == pytest.approx(r["t"] + 0.3)
+        assert json.loads(json.dumps(r)) == r  # plain JSON types only
+        given = oracle.seen[r["t"]]
+        assert len(r["objects"]) == len(given) > 0
+        assert sorted((o["label"], o["box"], o["score"]) for o in r["objects"]) == \
+            sorted((d.label, [float(c) for c in d.box], d.score) for d in given)
+        for o in r["objects"]:
+            u0, v0, u1, v1 = o["box"]
+            assert 0 <= u0 < u1 <= 640 and 0 <= v0 < v1 <= 480
+            assert o["label"] in ("car", "emergency")
+            assert (o["track"] is None) == (o["rejected"] is not None)
+            assert o["rejected"] is None or o["bsm_id"] is None
+
+
+def test_a_record_is_made_at_its_frames_ready_time_not_before():
+    core, _, vehicles = make_core(latencies={"detect": 0.3, "encode": 0.001, "sign": 0.002}, trace=True)
+    core.step(0.0, [FakeFrame("rsu_cam", 0, 0.0, Pixels(0.0, vehicles))])
+    when = []
+    for k in range(1, 40):
+        core.step(round(k * 0.01, 9))
+        when += [round(k * 0.01, 9)] * len(core.take_records())
+    assert when == [0.3]
+
+
+def test_a_records_tracks_are_stable_and_its_bsm_ids_are_those_the_bsms_carry():
+    core, _, vehicles = make_core(trace=True)
+    records: list[dict] = []
+    sent = bsms(run(core, vehicles, stop=4.0, records=records))
+    bsm_ids = {}  # emergency? -> the temporary id of the BSMs of that vehicle
+    for _, b in sent:
+        bsm_ids.setdefault(b.emergency is not None, set()).add(b.temporary_id.hex())
+    assert {k: len(v) for k, v in bsm_ids.items()} == {False: 1, True: 1}
+    first_sent = {}
+    for tx, b in sent:
+        first_sent.setdefault(b.temporary_id.hex(), tx.t_sim)
+    tracked = [(r, o) for r in records for o in r["objects"] if o["track"] is not None]
+    tracks = {label: {o["track"] for _, o in tracked if o["label"] == label} for label in ("car", "emergency")}
+    assert all(len(ids) == 1 for ids in tracks.values()) and tracks["car"] != tracks["emergency"]
+    for label in ("car", "emergency"):
+        mine = [(r, o) for r, o in tracked if o["label"] == label]
+        # confirmed by its third detection (confirm_hits = 3): before that no BSM, so no bsm_id
+        assert [o["bsm_id"] for _, o in mine[:2]] == [None, None]
+        assert {o["bsm_id"] for _, o in mine[2:]} == bsm_ids[label == "emergency"]
+        confirmed_at = mine[2][0]["detect_end"]
+        assert first_sent[mine[2][1]["bsm_id"]] >= confirmed_at
+
+
+def test_records_change_nothing_the_rsu_transmits():
+    def transmissions(trace: bool, **options):
+        core, _, vehicles = make_core(trace=trace, **options)
+        records: list[dict] = []
+        out = run(core, vehicles, stop=3.0, records=records)
+        return [(tx.key, tx.payload, tx.t_sim, tx.stamps, tx.kind, tx.object_id) for tx in out], records
+
+    for options in ({}, {"inference_s": 0.25, "hits": 1}):
+        off, none = transmissions(False, **options)
+        on, records = transmissions(True, **options)
+        assert not none and records and len(off) > 10
+        assert on == off
+
+
+class FlakyBus:
+    """A bus whose second publish fails."""
+
+    def __init__(self):
+        self.published = []
+
+    def publish(self, key, payload, t_sim, stamps=None):
+        if len(self.published) == 1 and not getattr(self, "failed", False):
+            self.failed = True
+            raise OSError("the bus is gone")
+        self.published.append((key, payload, t_sim, stamps))
+        return len(self.published) - 1
+
+
+def test_the_app_publishes_each_record_as_compact_json_at_its_detect_end_and_counts_failures():
+    from rsu_app.app import RsuApp
+    from rsu_app.config import build_settings
+
+    app = RsuApp(build_settings({}, {"security": {"mode": "unsecured"}, "camera": {"names": []}}, {}))
+    app.bus = FlakyBus()
+    records = [{"kind": "detections", "camera": "rsu_cam", "frame_id": k, "t": k * 0.1, "detect_start": k * 0.1,
+                "detect_end": k * 0.1 + 0.05, "objects": []} for k in range(3)]
+    app._trace(records)
+    assert (app.trace_records, app.trace_errors) == (2, 1)
+    assert [(key, t_sim, stamps) for key, _, t_sim, stamps in app.bus.published] == \
+        [("trace/rsu", 0.05, None), ("trace/rsu", 0.25, None)]
+    payload = app.bus.published[1][1]
+    assert json.loads(payload) == records[2] and b" " not in payload
+    assert app.summary()["trace"] == {"detections": False, "records": 2, "publish_errors": 1}
 
 
 # -- SPaT and MAP -----------------------------------------------------------------------------------------

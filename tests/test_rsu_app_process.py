@@ -20,7 +20,7 @@ import pytest
 from bridges.camera_stream import KEY as CAMERA_KEY
 from bridges.headed_payload import pack
 from bridges.security import PSID_SPAT_MAP, PSID_SURROGATE_BSM, Verifier, load_certificate, time64_us
-from bridges.v2x import DETECT_END, DETECT_START, ENCODE, FRAME, SEND, SIGN, stamp_s
+from bridges.v2x import DETECT_END, DETECT_START, ENCODE, FRAME, SEND, SIGN, stamp_s, trace_key
 
 from test_hil_netns import MASTER_IP, netns_pair  # noqa: F401  (the two-namespace fixture)
 from test_rsu_app_support import (CASE_STUDY, ROOT, Truth, app_summary, bridge_tables, decode_bsms, free_port,
@@ -192,6 +192,39 @@ def test_a_slow_computer_drops_frames_and_tells_of_the_ev_seconds_later(case_run
                    key=lambda b: b.t_tx)
     assert stamp_s(slow_bsm.stamps[FRAME]) == pytest.approx(3.8)
     assert truth.at("ev", slow_bsm.t)[0] - slow_bsm.x > 40.0
+
+
+def test_a_detections_record_arrives_for_every_frame_made_known(case_run):
+    """Each processed frame whose detections were ready before the run ended leaves one trace record at its
+    detect_end; the BSM ids in them are those the BSMs carry."""
+    probe, summaries = case_run["probe"], case_run["summaries"]
+    traces = defaultdict(list)
+    for tr in probe.traces:
+        traces[tr.key].append(tr)
+    # rsu (detect 50 ms) and rsu_fast (33 ms) know all 80 frames by 8 s; rsu_slow (3.7 s) only 0 and 3.8 s
+    for name, frames in (("rsu", 80), ("rsu_fast", 80), ("rsu_slow", 2)):
+        got = traces[trace_key(name)]
+        assert all(tr.record and tr.record["kind"] == "detections" and "stamps" not in tr.record for tr in got)
+        assert len(got) == frames == len({tr.record["frame_id"] for tr in got}), (name, len(got))
+        assert summaries[name]["trace"] == {"detections": True, "records": frames, "publish_errors": 0}
+        assert all(tr.t_sim == pytest.approx(tr.record["detect_end"]) for tr in got)
+    slow = [tr.record for tr in traces[trace_key("rsu_slow")]]
+    assert [r["t"] for r in slow] == pytest.approx([0.0, 3.8])
+    records = [tr.record for tr in traces[trace_key("rsu")]]
+    assert all(r["detect_end"] - r["t"] == pytest.approx(0.05) for r in records)
+    objects = [o for r in records for o in r["objects"]]
+    # boxes in the frame's pixels as the detector gave them: one of a vehicle cut by the image border may reach
+    # beyond it (the detector extrapolates the vehicle), by less than a tenth of the image
+    wrong = [o for o in objects if not (len(o["box"]) == 4 and -64 < o["box"][0] < o["box"][2] < 640 + 64 and
+                                        -48 < o["box"][1] < o["box"][3] < 480 + 48 and o["box"][2] > 0 and
+                                        o["box"][0] < 640 and o["box"][3] > 0 and o["box"][1] < 480)]
+    assert objects and not wrong, wrong
+    assert {o["label"] for o in objects} == {"car", "emergency"}
+    bsms, _ = decode_bsms(probe.sent, "rsu", probe.world, case_run["verifier"]())
+    kind_of = {b.id: b.emergency for b in bsms}
+    named = {o["bsm_id"]: o["label"] == "emergency" for o in objects if o["bsm_id"]}
+    assert set(named) == set(kind_of)  # every broadcast track was boxed, and no box names a BSM never sent
+    assert named == kind_of  # the ev's boxes name the BSM with the emergency extension
 
 
 # -- the same app on a box: another network namespace, joined over a veth link ------------------------------

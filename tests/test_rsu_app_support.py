@@ -3,8 +3,9 @@
 A *probe* participant in the test process (its own zenoh session connected to
 the master's endpoint) joins the run, acknowledges every tick and records every
 frame published on `v2x/tx/*` (what the apps transmit, before the air) with its
-simulation time and trace stamps, and its own welcome (the run's epoch and
-origin). Because it is a participant, the master does not start before the probe
+simulation time and trace stamps, every trace record on `trace/*` (the apps'
+JSON records, e.g. the RSU's "detections" of each frame), and its own welcome
+(the run's epoch and origin). Because it is a participant, the master does not start before the probe
 is connected, so nothing the RSU sends is missed.
 
 Ground truth comes from the run's `timeseries.csv` (rear-axle x, y and yaw of each
@@ -89,6 +90,14 @@ class Sent:
 
 
 @dataclass
+class Traced:
+    key: str
+    sender: str
+    t_sim: float
+    record: dict | None  # None: the payload was not a JSON object
+
+
+@dataclass
 class Probe:
     """A participant in this process that records what the apps transmit."""
 
@@ -97,6 +106,7 @@ class Probe:
     name: str = "probe"
     listen: str | None = None  # an endpoint apps on other hosts connect to (zenoh peers do not route for others)
     sent: list[Sent] = field(default_factory=list)
+    traces: list[Traced] = field(default_factory=list)
     world: dict = field(default_factory=dict)
     ticks: int = 0
     error: BaseException | None = None
@@ -109,6 +119,7 @@ class Probe:
         self.bus = open_bus("zenoh", prefix=self.prefix, sender=self.name, connect=[self.connect], **extra)
         self._lock = threading.Lock()
         self._sub = self.bus.subscribe("v2x/tx/*", self._on_tx)
+        self._trace_sub = self.bus.subscribe("trace/*", self._on_trace)
         self.part = Participant(self.bus, self.name, "probe")
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -120,6 +131,14 @@ class Probe:
     def _on_tx(self, msg) -> None:
         with self._lock:
             self.sent.append(Sent(msg.key, msg.sender, msg.t_sim, dict(msg.stamps), bytes(msg.payload)))
+
+    def _on_trace(self, msg) -> None:
+        try:
+            record = json.loads(msg.payload)
+        except ValueError:
+            record = None
+        with self._lock:
+            self.traces.append(Traced(msg.key, msg.sender, msg.t_sim, record if isinstance(record, dict) else None))
 
     def _run(self) -> None:
         try:
@@ -137,6 +156,7 @@ class Probe:
             self.error = TimeoutError(f"probe: the run did not end within {timeout} s")
         self.part.close()
         self._sub.close()
+        self._trace_sub.close()
         self.bus.close()
 
 

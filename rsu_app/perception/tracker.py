@@ -22,6 +22,10 @@ without a detection. `predict(t)` extrapolates confirmed tracks to any later
 time without changing them, so the 10 Hz BSM clock does not need a
 detection every tick. Below `min_speed` the heading is held at its last
 value: the direction of a nearly-stopped vehicle's velocity is noise.
+
+After each `update`, `last_assignment[j]` is the id of the track the j-th
+detection updated or started: what a trace of the frame needs to say which
+box became which track (recorded only; it changes no tracking result).
 """
 from __future__ import annotations
 
@@ -296,6 +300,7 @@ class Tracker:
         self.tracks: list[_Track] = []
         self.t: float | None = None
         self._next_id = 1
+        self.last_assignment: list[int] = []  # per detection of the last update: the track it updated or started
 
     def _check_time(self, t: float) -> float:
         t = float(t)
@@ -307,6 +312,7 @@ class Tracker:
 
     def update(self, t: float, detections) -> list[TrackState]:
         """Fold in the ground detections of one frame taken at time t; returns the confirmed tracks."""
+        self.last_assignment = []  # a refused update associates nothing
         t = self._check_time(t)
         dets = [d if isinstance(d, GroundDetection) else GroundDetection(*d) for d in detections]
         for d in dets:
@@ -321,8 +327,10 @@ class Tracker:
         pairs = self._associate(dets)
         matched_t = {i for i, _ in pairs}
         matched_d = {j for _, j in pairs}
+        assignment = [0] * len(dets)
         for i, j in pairs:
             tr, d = self.tracks[i], dets[j]
+            assignment[j] = tr.id
             tr.filter.update(np.array([d.x, d.y]))
             tr.hits.append(True)
             tr.missed = 0
@@ -346,7 +354,9 @@ class Tracker:
         for j, d in enumerate(dets):
             if j not in matched_d:
                 self.tracks.append(_Track(self._next_id, d, t, cfg))
+                assignment[j] = self._next_id
                 self._next_id += 1
+        self.last_assignment = assignment
         for tr in self.tracks:
             tr.heading = tr.state(t, tr.filter.estimate(), cfg.min_speed).heading
         self.t = t
