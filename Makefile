@@ -28,7 +28,7 @@ test: fmus
 # The perception benchmark's held-out dataset (README, RECIPE.md): rendered once, about 3 minutes.
 HELDOUT := data/heldout/annotations.json
 $(HELDOUT): | fmus
-	$(BIN)/v2i dataset --scenario scenarios/ima_case_study.toml --out data/heldout --frames 400 --seed 1001 \
+	$(BIN)/v2i dataset --scenario scenarios/ima_world.toml --out data/heldout --frames 400 --seed 1001 \
 	    --variant heldout --backgrounds --jobs 2
 
 bench: fmus $(HELDOUT)

@@ -57,7 +57,7 @@ STAGES = ("preprocess", "inference", "postprocess", "projection", "tracking", "p
 SCORE = 0.05
 DEFAULT_DATA = ROOT / "data" / "heldout"
 # the command that writes the default dataset (as README.md and rsu_app/perception/weights/RECIPE.md give it)
-MAKE_HELDOUT = ("v2i dataset --scenario scenarios/ima_case_study.toml --out {out} --frames 400 --seed 1001 "
+MAKE_HELDOUT = ("v2i dataset --scenario scenarios/ima_world.toml --out {out} --frames 400 --seed 1001 "
                 "--variant heldout --backgrounds --jobs 2")
 
 

@@ -49,7 +49,7 @@ from benchmarks.common import RESULTS, machine_info, write_report  # noqa: E402
 
 PAPER_STAGE1_MS = 3600.0  # ANCHORS I6: detection on an 8-core CPU
 PAPER_STAGE2_MS = 8.1     # ANCHORS I6: BSM encode + transfer
-CASE = ROOT / "scenarios" / "ima_case_study.toml"
+CASE = ROOT / "scenarios" / "ima_world.toml"
 TUNING = ROOT / "tests" / "scenarios" / "rsu_tuning.toml"
 MATCH_M = 3.0
 NEAR_M = 60.0

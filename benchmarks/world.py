@@ -4,7 +4,7 @@
 
 1. Camera frames per second (pybullet's CPU TinyRenderer, `Camera.render`,
    RGB + segmentation) at 320x240, 640x480 and 1280x720 on the case-study
-   scene (scenarios/ima_case_study.toml: ground, roads, sidewalks, the
+   scene (scenarios/ima_world.toml: ground, roads, sidewalks, the
    corner building, both vehicles posed as at t = 4.8 s; the RSU camera's
    pose and 100 deg field of view). Ratio: frames per second / the camera's
    10 Hz rate (>= 1: rendering keeps up with simulated real time).
@@ -45,7 +45,7 @@ from master.world.layout import VehicleSpec, WorldLayout  # noqa: E402
 from master.world.lidar import BATCH  # noqa: E402
 from master.world.world import World, WorldParticipant  # noqa: E402
 
-SCENARIO = ROOT / "scenarios" / "ima_case_study.toml"
+SCENARIO = ROOT / "scenarios" / "ima_world.toml"
 RESOLUTIONS = ((320, 240), (640, 480), (1280, 720))
 LIDARS = ((16, 1024), (32, 2048))
 FLEETS = (2, 20, 200)

@@ -3,7 +3,7 @@
     from evaluation.tracker_sequence import evaluate_sequence
     from rsu_app.perception import make_detector
 
-    rep = evaluate_sequence("scenarios/ima_case_study.toml", make_detector("torch"))
+    rep = evaluate_sequence("scenarios/ima_world.toml", make_detector("torch"))
     print(rep.table())
 
 An evaluation tool, not part of the RSU app: it poses the simulator's world

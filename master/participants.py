@@ -22,8 +22,11 @@ Scenario file::
     timeout_s = 5.0               # wall seconds to acknowledge a tick
     sync_every = 10               # tick at every 10th step
     latencies = { detect = 0.05, encode = 0.002 }   # fixed policy: simulated seconds per stage
-    command = ["{python}", "-m", "rsu_app"]          # optional: started by the master
+    command = ["{python}", "-m", "rsu_app"]          # optional: started by the master ({python}: this
+                                                     # Python, {name}: the participant, {run}: the run folder)
     env = { RSU_CAMERA = "cam1" }
+    enabled = true                # false: as if the table were not there (a scenario that extends
+                                  # another one switches an app off this way)
 
 A participant without `command` is one the user starts (or a box on the
 network): the master waits `join_timeout_s` for it. A started one gets the
@@ -62,7 +65,7 @@ log = logging.getLogger(__name__)
 TRANSPORTS = ("zenoh", "udp", "memory")
 BRIDGE_KEYS = ("transport", "prefix", "listen", "connect", "group", "port", "options", "latency",
                "join_timeout_s", "heartbeat_s", "heartbeat_timeout_s", "on_refused", "camera_encoding")
-PARTICIPANT_KEYS = ("role", "required", "timeout_s", "sync_every", "latencies", "command", "env")
+PARTICIPANT_KEYS = ("role", "required", "timeout_s", "sync_every", "latencies", "command", "env", "enabled")
 ON_REFUSED = ("wait", "fail")
 _PREFIX = re.compile(r"^[A-Za-z0-9_.\-]+(/[A-Za-z0-9_.\-]+)*$")
 MAP_PERIOD_S = 1.0  # realtime: republish the mapping this often (wall seconds)
@@ -114,6 +117,7 @@ class ParticipantSpec:
     latencies: dict[str, float] = field(default_factory=dict)
     command: list[str] | None = None
     env: dict[str, str] = field(default_factory=dict)
+    enabled: bool = True
 
     def expected(self) -> Expected:
         return Expected(self.name, self.role, self.required, self.timeout_s, self.sync_every, dict(self.latencies))
@@ -154,8 +158,8 @@ def parse_participants(bridge: Any, participants: Any, base_dir: Path,
     specs: dict[str, ParticipantSpec] = {}
     for name in members.raw:
         spec = _parse_participant(members, name)
-        if spec is None:
-            continue
+        if spec is None or not spec.enabled:  # enabled = false: not started, not waited for (a variant
+            continue                          # of a scenario without this app, e.g. ima_no_cps.toml)
         if spec.command and b.transport == "memory":
             members.problem(f"{name}.command", "the memory transport only reaches this process; "
                                                "a started participant needs transport = \"zenoh\" or \"udp\"")
@@ -203,6 +207,7 @@ def _parse_participant(members: Table, name: str) -> ParticipantSpec | None:
         return None
     t.unknown_keys(PARTICIPANT_KEYS)
     spec = ParticipantSpec(name)
+    spec.enabled = t.boolean("enabled", True)
     spec.role = t.string("role", None, expected="a role name such as \"rsu_app\"")
     spec.required = t.boolean("required", spec.required)
     spec.timeout_s = _seconds(t, "timeout_s", spec.timeout_s)
@@ -363,7 +368,12 @@ class ParticipantBridge(Hook):
         return env
 
     def _start(self, p: ParticipantSpec, run_dir: Path) -> None:
-        argv = [c.replace("{python}", sys.executable).replace("{name}", p.name) for c in p.command]
+        words = {"{python}": sys.executable, "{name}": p.name, "{run}": str(run_dir.resolve())}
+        argv = []
+        for c in p.command:
+            for placeholder, value in words.items():
+                c = c.replace(placeholder, value)
+            argv.append(c)
         path = run_dir / f"participant-{p.name}.log"
         self.logs[p.name] = path
         with open(path, "wb") as out:

@@ -143,18 +143,32 @@ def _png(fig) -> bytes:
     return buf.getvalue()
 
 
-def plot_top_down(run: Run, every_s: float = 1.0) -> bytes:
-    from matplotlib.patches import Polygon as Patch
-    from matplotlib.patches import Rectangle
+def plot_top_down(run: Run, every_s: float = 1.0, zoom_m: float = 25.0) -> bytes:
+    """The whole map with footprints every `every_s`, beside the junction (+-`zoom_m`) at twice that rate."""
+    import matplotlib.pyplot as plt
 
-    fig, ax = _figure(7, 7)
     inter = run.world.get("intersection", {})
-    half, road = float(inter.get("arm_length", 60.0)), float(inter.get("road_width", 7.0))
-    t = run.series["time"]
+    half = float(inter.get("arm_length", 60.0))
     vehicles = run.vehicles()
     xs = np.concatenate([run.series[f"{v}.x"] for v in vehicles]) if vehicles else np.zeros(1)
     ys = np.concatenate([run.series[f"{v}.y"] for v in vehicles]) if vehicles else np.zeros(1)
     span = max(20.0, min(half, float(np.max(np.abs(np.concatenate([xs, ys])))) + 8.0))
+    fig, (whole, junction) = plt.subplots(1, 2, figsize=(13, 6.5), dpi=100)
+    _draw_top_down(whole, run, every_s, span, "{:.0f}")
+    whole.set_title(f"{run.name}: top-down, footprints every {every_s:g} s (labels: t in s)", fontsize=10)
+    _draw_top_down(junction, run, every_s / 2, min(zoom_m, span), "{:.1f}")
+    junction.set_title(f"the junction, every {every_s / 2:g} s", fontsize=10)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _draw_top_down(ax, run: Run, every_s: float, span: float, label: str) -> None:
+    from matplotlib.patches import Polygon as Patch
+    from matplotlib.patches import Rectangle
+
+    inter = run.world.get("intersection", {})
+    half, road = float(inter.get("arm_length", 60.0)), float(inter.get("road_width", 7.0))
+    t = run.series["time"]
     ax.add_patch(Rectangle((-half, -road / 2), 2 * half, road, color="#d9d9d9", zorder=0))
     ax.add_patch(Rectangle((-road / 2, -half), road, 2 * half, color="#d9d9d9", zorder=0))
     ax.axhline(0, color="white", lw=1, ls="--", zorder=0)
@@ -162,21 +176,24 @@ def plot_top_down(run: Run, every_s: float = 1.0) -> bytes:
     for b in run.world.get("buildings", []):
         ax.add_patch(Rectangle((b["x"] - b["size_x"] / 2, b["y"] - b["size_y"] / 2), b["size_x"], b["size_y"],
                                color="#555555", zorder=1))
-        ax.text(b["x"], b["y"], b.get("name", ""), color="white", ha="center", va="center", fontsize=8)
+        ax.text(float(np.clip(b["x"], -span * 0.8, span * 0.8)), float(np.clip(b["y"], -span * 0.8, span * 0.8)),
+                b.get("name", ""), color="white", ha="center", va="center", fontsize=8, clip_on=True)
     for cam in run.world.get("cameras", []):
         ax.plot(cam["x"], cam["y"], marker="^", color="black", ms=8, zorder=5)
         ax.annotate(cam["name"], (cam["x"], cam["y"]), textcoords="offset points", xytext=(4, 4), fontsize=8)
     step = max(1, int(round(every_s / (t[1] - t[0])))) if len(t) > 1 else 1
-    for i, name in enumerate(vehicles):
+    for i, name in enumerate(run.vehicles()):
         colour = _COLOURS[i % len(_COLOURS)]
         x, y, yaw = run.pose(name)
         ax.plot(x, y, color=colour, lw=1.5, label=name, zorder=3)
         body = run.body(name)
         for k in range(0, len(t), step):
+            if abs(x[k]) > span or abs(y[k]) > span:
+                continue
             if body is not None:
                 ax.add_patch(Patch(body.corners(x[k], y[k], yaw[k]), closed=True, fill=False, ec=colour, lw=0.8,
                                    zorder=4))
-            ax.annotate(f"{t[k]:.0f}", (x[k], y[k]), fontsize=7, color=colour, zorder=6)
+            ax.annotate(label.format(t[k]), (x[k], y[k]), fontsize=7, color=colour, zorder=6, annotation_clip=True)
     fc = run.metrics.get("first_collision")
     if fc:
         k = int(np.searchsorted(t, fc["t"]))
@@ -188,9 +205,7 @@ def plot_top_down(run: Run, every_s: float = 1.0) -> bytes:
     ax.set_aspect("equal")
     ax.set_xlabel("x east (m)")
     ax.set_ylabel("y north (m)")
-    ax.set_title(f"{run.name}: top-down, footprints every {every_s:g} s (labels: t in s)")
     ax.legend(loc="upper left", fontsize=8)
-    return _png(fig)
 
 
 def plot_speeds(runs: list[Run]) -> bytes:

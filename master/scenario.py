@@ -170,7 +170,49 @@ def load_scenario(path: str | os.PathLike) -> Scenario:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(path, [f"not valid TOML: {exc}"]) from None
+    raw = with_base(path, raw)
     return _Validator(path, raw).validate()
+
+
+def with_base(path: Path, raw: dict[str, Any], chain: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """The file's tables laid over those of the scenario it `extends` ([scenario] extends = "base.toml").
+
+    Tables merge key by key, recursively; any other value (numbers, strings, lists, arrays of tables)
+    replaces the base's. So a variant names only what differs, e.g. ima_no_cps.toml switches the RSU
+    app off (`[participants.rsu] enabled = false`) and nothing else can drift between the two files.
+    The base's relative paths are read from the extending file's folder: keep the two in one folder.
+    """
+    meta = raw.get("scenario")
+    base_name = meta.get("extends") if isinstance(meta, dict) else None
+    if base_name is None:
+        return raw
+    if not isinstance(base_name, str) or not base_name:
+        raise ScenarioError(path, [f"scenario.extends: expected the path of a scenario file, got {base_name!r}"])
+    base = Path(base_name).expanduser()
+    base = (base if base.is_absolute() else path.parent / base).resolve()
+    chain = chain + (path.resolve(),)
+    if base in chain:
+        raise ScenarioError(path, [f"scenario.extends: {base_name!r} extends this file again "
+                                   f"({' -> '.join(p.name for p in chain + (base,))})"])
+    try:
+        base_raw = tomllib.loads(base.read_text())
+    except OSError as exc:
+        raise ScenarioError(path, [f"scenario.extends: cannot read {base}: {exc.strerror or exc}"]) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(path, [f"scenario.extends: {base} is not valid TOML: {exc}"]) from None
+    merged = _merge(with_base(base, base_raw, chain), raw)
+    merged["scenario"] = {k: v for k, v in merged["scenario"].items() if k != "extends"}
+    return merged
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
 
 
 class _Validator:

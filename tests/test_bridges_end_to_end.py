@@ -24,7 +24,7 @@ from master.cosim import CoSimulation
 from master.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
-CASE = (ROOT / "scenarios" / "ima_case_study.toml").read_text()
+CASE = (ROOT / "scenarios" / "ima_world.toml").read_text()
 
 
 def _scenario(tmp_path, prefix: str) -> Path:

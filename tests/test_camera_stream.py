@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 @pytest.fixture(scope="module")
 def frame():
-    layout = load_scenario(ROOT / "scenarios" / "ima_case_study.toml").world
+    layout = load_scenario(ROOT / "scenarios" / "ima_world.toml").world
     with World(layout) as w:
         w.pose_vehicle("cav", 1.75, -20.0, np.pi / 2)
         w.pose_vehicle("ev", -25.0, -1.75, 0.0)

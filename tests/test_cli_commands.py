@@ -165,7 +165,7 @@ def test_a_missing_extra_is_a_one_line_hint(plugin_env, tmp_path):
         assert r.stderr == f"v2i {args[0]}: {PERCEPTION_HINT}\n", r.stderr
         assert not (tmp_path / "w.pt").exists() and not (tmp_path / "w.onnx").exists()
     # the detector registry has its own one-line message for a backend whose package is missing
-    r = v2i("eval-tracker", "--scenario", "scenarios/ima_case_study.toml", "--detector", "onnx", env=plugin_env)
+    r = v2i("eval-tracker", "--scenario", "scenarios/ima_world.toml", "--detector", "onnx", env=plugin_env)
     assert r.returncode == 2 and len(r.stderr.splitlines()) == 1 and "'perception' extra" in r.stderr, r.stderr
 
 

@@ -21,7 +21,7 @@ from rsu_app.perception import make_detector  # noqa: E402
 from rsu_app.perception.detector import Detection  # noqa: E402
 from evaluation.tracker_sequence import evaluate_sequence  # noqa: E402
 
-SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ima_case_study.toml"
+SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ima_world.toml"
 STRETCH = dict(start=3.0, stop=5.5, min_age=1.0)  # the ev is within 60 m of the camera from t = 2.8 s
 torch.set_num_threads(1)
 

@@ -37,7 +37,7 @@ def fresh(tmp_path_factory):
     from master.world.dataset import make_dataset
 
     out = tmp_path_factory.mktemp("heldout")
-    make_dataset(load_scenario(ROOT / "scenarios" / "ima_case_study.toml").world, out, frames=16, seed=SEED,
+    make_dataset(load_scenario(ROOT / "scenarios" / "ima_world.toml").world, out, frames=16, seed=SEED,
                  variant="heldout", occlusion=False)
     return load_dataset(out)
 

@@ -67,7 +67,7 @@ def test_unknown_sender_is_rejected_with_the_reason():
 
 def test_the_corner_building_blocks_the_link_it_stands_in():
     """Case-study geometry: the cav south of the junction and the ev west of it, building between."""
-    world = load_scenario(ROOT / "scenarios" / "ima_case_study.toml").world
+    world = load_scenario(ROOT / "scenarios" / "ima_world.toml").world
     spec = _spec({"cav": (1.75, -60.0, 0.0), "ev": (-60.0, -1.75, 0.0), "rsu": (6.5, 6.5, 6.0)},
                  wall_loss_db=30.0)
     air, log = _air(spec, lambda p, q: line_of_sight(p, q, world.buildings))

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-CASE_STUDY = ROOT / "scenarios" / "ima_case_study.toml"
+CASE_STUDY = ROOT / "scenarios" / "ima_world.toml"
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
 
 

@@ -18,7 +18,7 @@ from master.scenario import load_scenario  # noqa: E402
 from master.world.ground_truth import frame_truth  # noqa: E402
 from master.world.world import World  # noqa: E402
 
-SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ima_case_study.toml"
+SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ima_world.toml"
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,7 @@ from master.world.dataset import (CATEGORY_ID, DatasetError, HELDOUT, TRAIN, Pla
 from master.world.layout import VehicleSpec
 
 ROOT = Path(__file__).resolve().parent.parent
-CASE = ROOT / "scenarios" / "ima_case_study.toml"
+CASE = ROOT / "scenarios" / "ima_world.toml"
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def _render(monkeypatch, name):
     monkeypatch.setenv(renderer.ENV, name)
-    layout = load_scenario(ROOT / "scenarios" / "ima_case_study.toml").world
+    layout = load_scenario(ROOT / "scenarios" / "ima_world.toml").world
     with World(layout) as w:
         w.pose_vehicle("cav", 1.75, -20.0, np.pi / 2)
         w.pose_vehicle("ev", -25.0, -1.75, 0.0)
@@ -49,7 +49,7 @@ def _render_env(name):
     import os
 
     os.environ[renderer.ENV] = name
-    layout = load_scenario(ROOT / "scenarios" / "ima_case_study.toml").world
+    layout = load_scenario(ROOT / "scenarios" / "ima_world.toml").world
     with World(layout) as w:
         w.pose_vehicle("cav", 1.75, -20.0, np.pi / 2)
         w.pose_vehicle("ev", -25.0, -1.75, 0.0)

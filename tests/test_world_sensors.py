@@ -13,7 +13,7 @@ from master.scenario import load_scenario
 from master.world.gnss import Gnss
 from master.world.layout import GnssSpec
 
-SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ima_case_study.toml"
+SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ima_world.toml"
 
 
 def fixes(spec: GnssSpec, n: int, name: str = "cav", rate: float = 10.0, heading: float = 0.3, speed: float = 8.0):

@@ -14,7 +14,7 @@ from master.world.layout import CameraSpec, WorldLayout  # noqa: E402
 from master.snapshot import camera_footprint  # noqa: E402
 from master.world.world import World  # noqa: E402
 
-SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ima_case_study.toml"
+SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ima_world.toml"
 
 
 def magenta_pixels(png: Path) -> int:
