@@ -10,6 +10,13 @@ frame is published on `v2x/rx/<receiver>` at its simulated arrival time; a
 dropped one is only logged. Every frame is logged as sent, and per receiver as
 dropped (with the reason) or delivered (with its times).
 
+Each frame's events also say which world vehicle it describes (`subject`, the
+FMU instance; None when the air cannot tell) and the time of the camera frame
+its information comes from (`frame_t`, the FRAME stamp in seconds, or None):
+the hook unwraps the envelope without verifying it, decodes a BSM's position
+and takes the nearest vehicle within a gate (master.v2x_subject). The metrics'
+age of information per "receiver<-subject" is built on these (master.metrics).
+
 `mode = "bypass"` is for real radios: apps hear each other directly and the
 air only logs what was sent.
 
@@ -32,7 +39,7 @@ import threading
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Callable
 
-from bridges.v2x import AIR_ARRIVAL, TX_KEY, rx_key, stamp_ns
+from bridges.v2x import AIR_ARRIVAL, FRAME, TX_KEY, rx_key, stamp_ns, stamp_s
 from master.hooks import Hook, Outcome, RunContext
 from master.tables import Table, did_you_mean, is_number
 
@@ -132,6 +139,7 @@ class _Pending:
     t_tx: float = field(compare=False)
     payload: bytes = field(compare=False)
     stamps: dict = field(compare=False)
+    about: dict = field(compare=False, default_factory=dict)
 
 
 @dataclass
@@ -143,6 +151,15 @@ class Delivery:
     arrival: float
     payload: bytes
     stamps: dict
+    about: dict = field(default_factory=dict)  # the frame's extra event fields (Air.transmit)
+
+
+def _with(event: dict, about: dict | None) -> dict:
+    """An event with a frame's extra fields added after its own (which they never replace)."""
+    if about:
+        for key, value in about.items():
+            event.setdefault(key, value)
+    return event
 
 
 class Air:
@@ -169,15 +186,22 @@ class Air:
         self._order = itertools.count()
         self.counts = {"sent": 0, "delivered": 0, "dropped": 0, "out_of_range": 0, "unknown_sender": 0}
 
-    def transmit(self, sender: str, seq: int, t_tx: float, payload: bytes, stamps: dict | None = None) -> None:
-        """A frame on the air at t_tx: decide its fate at every other station now."""
+    def transmit(self, sender: str, seq: int, t_tx: float, payload: bytes, stamps: dict | None = None,
+                 about: dict | None = None) -> None:
+        """A frame on the air at t_tx: decide its fate at every other station now.
+
+        `about`: extra fields for every event of this frame (sent, dropped, scheduled, delivered), e.g. the
+        vehicle it describes (`subject`) and its camera-frame time (`frame_t`); they never replace the
+        event's own fields.
+        """
         if sender not in self.spec.stations:
             self.counts["unknown_sender"] += 1
             self.log({"event": "v2x_rejected", "t": t_tx, "from": sender, "seq": seq,
                       "reason": f"unknown station {sender!r} (stations: {', '.join(self.spec.stations)})"})
             return
+        about = dict(about) if about else {}
         self.counts["sent"] += 1
-        self.log({"event": "v2x_sent", "t": t_tx, "from": sender, "seq": seq, "bytes": len(payload)})
+        self.log(_with({"event": "v2x_sent", "t": t_tx, "from": sender, "seq": seq, "bytes": len(payload)}, about))
         if self.spec.mode == "bypass":
             return
         tx = self.position(sender, t_tx)
@@ -190,8 +214,8 @@ class Air:
             d = math.dist(tx, rx)
             if d > self.spec.max_range_m:
                 self.counts["out_of_range"] += 1
-                self.log({"event": "v2x_dropped", "t": t_tx, "from": sender, "to": receiver, "seq": seq,
-                          "reason": "out_of_range", "distance_m": round(d, 2)})
+                self.log(_with({"event": "v2x_dropped", "t": t_tx, "from": sender, "to": receiver, "seq": seq,
+                                "reason": "out_of_range", "distance_m": round(d, 2)}, about))
                 continue
             _, walls, inside = self.obstruction((tx[0], tx[1], tx[2] + h_tx), (rx[0], rx[1], rx[2] + h_rx))
             link = model.evaluate_one(tx, rx, walls, inside, packet_bytes=max(len(payload), 1), seq=seq,
@@ -200,14 +224,14 @@ class Air:
                      "rx_power_dbm": round(link["rx_power_dbm"], 2), "snr_db": round(link["snr_db"], 2)}
             if not link["delivered"]:
                 self.counts["dropped"] += 1
-                self.log({"event": "v2x_dropped", "t": t_tx, "from": sender, "to": receiver, "seq": seq,
-                          "reason": "channel", "per": round(link["per"], 4), **facts})
+                self.log(_with({"event": "v2x_dropped", "t": t_tx, "from": sender, "to": receiver, "seq": seq,
+                                "reason": "channel", "per": round(link["per"], 4), **facts}, about))
                 continue
             arrival = t_tx + float(link["latency_s"])
             heapq.heappush(self._heap, _Pending(arrival, next(self._order), receiver, sender, seq, t_tx, payload,
-                                                dict(stamps or {})))
-            self.log({"event": "v2x_scheduled", "t": t_tx, "from": sender, "to": receiver, "seq": seq,
-                      "arrival": arrival, **facts})
+                                                dict(stamps or {}), about))
+            self.log(_with({"event": "v2x_scheduled", "t": t_tx, "from": sender, "to": receiver, "seq": seq,
+                            "arrival": arrival, **facts}, about))
 
     def due(self, t: float) -> list[Delivery]:
         """Frames whose arrival time is <= t, in arrival order."""
@@ -215,9 +239,9 @@ class Air:
         while self._heap and self._heap[0].arrival <= t + 1e-12:
             p = heapq.heappop(self._heap)
             self.counts["delivered"] += 1
-            self.log({"event": "v2x_delivered", "t": p.arrival, "from": p.sender, "to": p.receiver, "seq": p.seq,
-                      "t_tx": p.t_tx, "latency_s": p.arrival - p.t_tx})
-            out.append(Delivery(p.receiver, p.sender, p.seq, p.t_tx, p.arrival, p.payload, p.stamps))
+            self.log(_with({"event": "v2x_delivered", "t": p.arrival, "from": p.sender, "to": p.receiver,
+                            "seq": p.seq, "t_tx": p.t_tx, "latency_s": p.arrival - p.t_tx}, p.about))
+            out.append(Delivery(p.receiver, p.sender, p.seq, p.t_tx, p.arrival, p.payload, p.stamps, p.about))
         return out
 
     @property
@@ -233,6 +257,9 @@ class RadioBridge(Hook):
     frame stamped earlier than the step already done is put on the air at once
     and counted as late). Hooks: open / after_step / close, like the serial and
     world bridges. The bus and the event log are the run's (`RunContext`).
+
+    Frames are tied to the world vehicle they describe (`subject`, `frame_t` in
+    the air's events; master.v2x_subject), once per frame put on the air.
     """
 
     name = "v2x"
@@ -252,6 +279,7 @@ class RadioBridge(Hook):
         self._waiting: list[tuple] = []  # (t_sim, sender, seq, order, message) not yet on the air
         self._order = itertools.count()
         self.late = 0
+        self.subjects = None  # master.v2x_subject.SubjectFinder, once open
 
     def open(self, ctx: RunContext) -> dict[str, Any]:
         self.bus, self.log = ctx.bus, ctx.events
@@ -264,6 +292,7 @@ class RadioBridge(Hook):
                     fmu.access_key("x"), [fmu.variables[n].valueReference for n in ("x", "y")], setter=False)
         obstruction = world.line_of_sight if world is not None else None
         self.air = Air(self.spec, self._position, obstruction, self.log)
+        self.subjects = _subject_finder(ctx)
         self._sub = self.bus.subscribe(TX_KEY.format("*"), callback=self._on_tx)
         self._t_done = t
         return {"mode": self.spec.mode, "stations": list(self.spec.stations)}
@@ -291,11 +320,20 @@ class RadioBridge(Hook):
             if msg.t_sim < self._t_done - 1e-9:
                 self.late += 1
             station = msg.key.rsplit("/", 1)[-1]
-            air.transmit(station, msg.seq, max(msg.t_sim, self._t_done), msg.payload, msg.stamps)
+            about = self._about(msg) if station in self.spec.stations else None
+            air.transmit(station, msg.seq, max(msg.t_sim, self._t_done), msg.payload, msg.stamps, about)
         for d in air.due(t_next):
             self.bus.publish(rx_key(d.receiver), d.payload, d.arrival,
                              stamps={**d.stamps, AIR_ARRIVAL: stamp_ns(d.arrival)})
         self._t_done = t_next
+
+    def _about(self, msg) -> dict[str, Any]:
+        """The frame's `subject` and `frame_t` (the vehicles are placed at the frame's own time, t_sim)."""
+        frame = (msg.stamps or {}).get(FRAME)
+        frame_t = stamp_s(int(frame)) if isinstance(frame, (int, float)) and not isinstance(frame, bool) else None
+        if self.subjects is None:
+            return {"subject": None, "frame_t": frame_t}
+        return self.subjects.about(msg.payload, float(msg.t_sim), frame_t)
 
     def close(self, outcome: Outcome | None = None) -> dict[str, Any]:
         if self._sub is not None:
@@ -303,4 +341,22 @@ class RadioBridge(Hook):
             self._sub = None
         air = self.air
         return {"mode": self.spec.mode, **(air.counts if air else {}), "late": self.late,
-                "in_flight_at_end": air.in_flight if air else 0}
+                "in_flight_at_end": air.in_flight if air else 0,
+                **(self.subjects.section() if self.subjects is not None else {})}
+
+
+def _subject_finder(ctx: RunContext):
+    """The run's tie from frames to vehicles: the world's vehicles and geodetic origin (the scenario's
+    [world] when the world hook is not open; without one, every FMU with x, y outputs and the default origin)."""
+    from bridges.geo import GeoOrigin
+    from bridges.j2735.codec import J2735Error
+    from master.v2x_subject import SubjectFinder, world_bodies
+
+    world = ctx.world
+    layout = world.layout if world is not None else getattr(getattr(ctx, "scenario", None), "world", None)
+    origin = getattr(layout, "origin", None) or GeoOrigin()
+    try:
+        return SubjectFinder(origin, world_bodies(ctx.fmus, layout))
+    except J2735Error as exc:  # e.g. V2I_J2735_ASN1_DIR names unusable files: the air runs, frames get no subject
+        ctx.events({"event": "v2x_subject_off", "t": ctx.t0, "reason": exc.reason})
+        return None
