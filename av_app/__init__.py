@@ -10,9 +10,10 @@ computer over Ethernet and a real CAN adapter:
                                                                      can_driver: AV_Command (echo), heartbeat
 
 Modules, one job each: `config` (TOML + flags, every problem by key),
-`obu`, `perception`, `fusion`, `ego`, `route` (and pure pursuit), `lanes`
-(map-based prediction), `estimator` (swept-box conflicts: TTC, PET),
-`planner` (speed profile, yield, control), `signals` (MAP + SPaT), `can_driver`,
+`obu`, `selfid` (which BSMs are the ego itself), `perception`, `fusion`,
+`ego`, `route` (and pure pursuit), `lanes` (map-based prediction),
+`estimator` (swept-box conflicts: TTC, PET), `planner` (speed profile, yield,
+control), `signals` (MAP + SPaT), `can_driver`,
 `timing` (the stage clock), `health`; `core` ties them together without any
 I/O, `app` is the process shell (bus, time protocol, CAN), `cli` the entry.
 

@@ -71,9 +71,18 @@ class ObuSection:
     default_length: float = _f(4.5, "object length when a BSM says 'unavailable', m", positive=True)
     default_width: float = _f(1.8, "object width when a BSM says 'unavailable', m", positive=True)
     position_sigma: float = _f(1.0, "position std of a BSM without accuracy, m (fusion weight)", positive=True)
-    self_gate_m: float = _f(2.5, "a BSM within this distance of the ego's own centre, going its way at its "
-                                 "speed, describes the ego itself (an RSU's surrogate BSM): not an obstacle",
-                            low=0.0)
+    self_gate_m: float = _f(2.5, "an RSU's surrogate BSM whose centre is within this distance of the ego's own "
+                                 "centre describes the ego itself (any speed and heading: the footprints would "
+                                 "overlap), not an obstacle; a vehicle's own BSM (PSID 0x20) also needs the ego's "
+                                 "heading (30 deg) and speed (2 m/s); 0: no BSM is the ego, m", low=0.0)
+    self_hold_factor: float = _f(2.0, "a surrogate BSM id once recognised as the ego stays the ego while its centre "
+                                      "is within this many self_gate_m of the ego's (and its heading within "
+                                      "self_hold_heading_deg); beyond, the id is forgotten", low=1.0)
+    self_hold_heading_deg: float = _f(45.0, "heading agreement an id held as the ego needs, deg", low=0.0,
+                                      high=180.0)
+    self_hold_slow_speed: float = _f(1.5, "an id held as the ego needs no heading agreement while it or the ego is "
+                                          "slower than this (a standing vehicle's track heading is noise), m/s",
+                                     low=0.0)
 
 
 @dataclass(frozen=True)

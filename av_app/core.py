@@ -29,7 +29,7 @@ from bridges.v2x import (AIR_ARRIVAL, CAN_COMMAND, DECODE, FUSE, PLAN, RECEIVE, 
 
 from av_app.config import AvConfig
 from av_app.ego import EgoFilter
-from av_app.fusion import FusedObject, fuse, predict_pose
+from av_app.fusion import FusedObject, fuse
 from av_app.geometry import to_frame
 from av_app.health import Health
 from av_app.lanes import LaneMap
@@ -37,6 +37,7 @@ from av_app.obu import Obu, Rejected, V2xObject
 from av_app.perception import LidarObject, LidarTracker, detect
 from av_app.planner import Plan, Planner, Stop
 from av_app.route import Route
+from av_app.selfid import EgoRecognizer, SelfCheck
 from av_app.signals import SignalState
 from av_app.timing import StageClock
 
@@ -66,6 +67,9 @@ class AvCore:
         self.tracker = LidarTracker(cfg.perception, self.lanes.on_road if self.lanes is not None else None)
         self.signals = SignalState(cfg, obu.origin)
         self.health = Health()
+        self.self_ids = EgoRecognizer(cfg.obu, cfg.vehicle)  # which BSMs describe the ego itself
+        self._self_counted: dict[str, float] = {}  # object id -> measurement time of its last BSM counted as self
+        self._self_now: list[tuple[str, str, float]] = []  # (id, rule, distance) left out of the last object list
         self._v2x: dict[str, list[list]] = {}  # object id -> [[usable from (FUSE), V2xObject], ...]
         self._lidar: list[tuple[float, list[LidarObject]]] = []
         self._lidar_now: list[LidarObject] = []
@@ -142,6 +146,7 @@ class AvCore:
         cfg = self.cfg
         v2x: list[V2xObject] = []
         state = self.ego.state(t)
+        self._self_now = []
         for oid in sorted(self._v2x):
             entries = self._v2x[oid]
             usable = [e for e in entries if e[0] <= t + 1e-12]
@@ -153,24 +158,29 @@ class AvCore:
             if t - obj.t > cfg.obu.max_age_s:
                 self.health.counts["v2x_aged_out"] += 1
                 del self._v2x[oid]
+                self.self_ids.forget(obj)
+                self._self_counted.pop(oid, None)
                 continue
-            if state is not None and self._is_self(obj, state, t):
-                self.health.counts["v2x_self"] += 1
-                continue
+            if state is not None:
+                check = self.self_ids.check(obj, state, t)
+                if check.is_self:  # the ego itself: neither fused nor planned around
+                    self._count_self(obj, check, t)
+                    continue
             v2x.append(obj)
         while len(self._lidar) and self._lidar[0][0] <= t + 1e-12:
             self._lidar_now = self._lidar.pop(0)[1]
         return fuse(v2x, self._lidar_now, t, cfg.fusion)
 
-    def _is_self(self, obj: V2xObject, state, t: float) -> bool:
-        """A BSM describing the ego itself (an RSU's surrogate BSM of this vehicle)."""
-        v = self.cfg.vehicle
-        off = v.length / 2 - v.rear_overhang
-        cx, cy = state.x + off * math.cos(state.yaw), state.y + off * math.sin(state.yaw)
-        x, y, yaw = predict_pose(obj.x, obj.y, obj.yaw, obj.speed, obj.yaw_rate, max(0.0, t - obj.t))
-        heading_ok = math.cos(yaw - state.yaw) > math.cos(math.radians(30)) or obj.speed < 1.0 and state.v < 1.0
-        return (math.hypot(x - cx, y - cy) < self.cfg.obu.self_gate_m and heading_ok
-                and abs(obj.speed - state.v) < 2.0)
+    def _count_self(self, obj: V2xObject, check: SelfCheck, t: float) -> None:
+        """`counts["v2x_self"]`: object lists that left a BSM out as the ego; `self_bsms[rule]`: distinct BSMs
+        recognised as the ego, by the rule that first did (a BSM is checked at every plan until the next)."""
+        h = self.health
+        h.counts["v2x_self"] += 1
+        self._self_now.append((obj.id, check.rule, check.distance))
+        if self._self_counted.get(obj.id) != obj.t:
+            self._self_counted[obj.id] = obj.t
+            h.self_bsms[check.rule] += 1
+            h.mark(f"v2x_self:{check.rule}", t)
 
     # -- one command per status -------------------------------------------------------------------------------
     def app_state(self, t: float) -> AppState:
@@ -258,6 +268,8 @@ class AvCore:
         if self.signals.last:
             out["signal"] = dict(self.signals.last)
         objs = [o for o in self.last_objects if not o.static]
+        if self._self_now:  # BSMs left out as the ego: [id, rule, distance from the ego's centre]
+            out["self"] = [[oid, rule, r(d)] for oid, rule, d in self._self_now]
         out["objects"] = [[o.id, o.source, r(o.x), r(o.y), r(o.yaw), r(o.speed), r(o.length), r(o.width), r(o.age)]
                           for o in objs]
         if st is not None:  # the same objects in the ego frame: metres ahead, metres to the left

@@ -29,6 +29,7 @@ class Health:
         self.decisions: Counter = Counter()  # plans per decision
         self.first: dict[str, float] = {}  # first times of notable events (sim s)
         self.errors: Counter = Counter()  # internal errors by type (should stay empty)
+        self.self_bsms: Counter = Counter()  # distinct BSMs recognised as the ego, by rule (av_app.selfid)
 
     def mark(self, event: str, t: float) -> None:
         self.first.setdefault(event, t)
@@ -39,7 +40,7 @@ class Health:
         s3 = pct(self.stage3_compute_ms)
         fmt = (lambda v: f"{v:.2f}" if v is not None else "-")
         return (f"{name}: t={t if t is not None else '-'} v2x rx={obu.received} ok={sum(obu.accepted.values())} "
-                f"rejected[{rej}] objects[{src}] decision={self.decision}"
+                f"rejected[{rej}] self={sum(self.self_bsms.values())} objects[{src}] decision={self.decision}"
                 f"{'(' + self.cause + ')' if self.cause else ''} stage3 p50={fmt(s3['p50'])} "
                 f"p99={fmt(s3['p99'])} ms can cmds={can.sent.get('AV_Command', 0) if can else 0}")
 
@@ -47,5 +48,6 @@ class Health:
         return {"counts": dict(self.counts), "garbage": dict(self.garbage), "errors": dict(self.errors),
                 "decision": self.decision, "cause": self.cause, "decisions": dict(self.decisions),
                 "objects_by_source": dict(self.objects_by_source), "first_s": dict(self.first),
+                "v2x_self_bsms": dict(self.self_bsms),
                 "stage3_sim_ms": pct(self.stage3_sim_ms), "stage3_compute_ms": pct(self.stage3_compute_ms),
                 "plan_ms": pct(self.plan_ms), "lidar_ms": pct(self.cluster_ms)}

@@ -21,8 +21,9 @@ from bridges.sensor_stream import GnssFix
 from bridges.v2x import AIR_ARRIVAL, CAN_COMMAND, DECODE, FUSE, PLAN, RECEIVE, SEND, VERIFY, stamp_ns, unix_time
 from av_app.config import ConfigError, EgoSection, LatencySection, build, load
 from av_app.core import AvCore
-from av_app.ego import EgoFilter
-from av_app.obu import Obu, Rejected
+from av_app.ego import EgoFilter, EgoState
+from av_app.obu import Obu, Rejected, V2xObject
+from av_app.selfid import EgoRecognizer
 from av_app.timing import StageClock
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -207,6 +208,190 @@ def test_a_bsm_of_the_ego_itself_is_not_an_obstacle(pki):
     core.on_v2x(signed(pki["rsu"], bsm(1.0, 1.75, -28.7, math.pi / 2, 8.333, track=4), 1.0), 1.001)
     core.command(1.02, lambda a, s, m: 0)
     assert core.last_objects == [] and core.health.counts["v2x_self"] == 1
+
+
+# -- which BSMs are the ego itself (av_app.selfid) -------------------------------------------------------------------
+EGO_YAW = math.pi / 2  # the ego heads north; its rear axle at (1.75, -30), its centre 1.3 m ahead of it
+EGO_CENTRE = (1.75, -28.7)
+
+
+def ego_state(v=8.333, y=-30.0):
+    return EgoState(0.0, 1.75, y, EGO_YAW, v, 0.0, 0.3)
+
+
+def v2x_obj(ahead, left, yaw_rel=0.0, speed=8.333, *, surrogate=True, oid="v2x:0000000a", station="rsu",
+            emergency=False, y=-30.0):
+    """A V2X object measured at t = 0, its centre `ahead` m in front of and `left` m left of the ego's centre."""
+    cx, cy = EGO_CENTRE[0], EGO_CENTRE[1] - (-30.0 - y)
+    x = cx + ahead * math.cos(EGO_YAW) - left * math.sin(EGO_YAW)
+    yy = cy + ahead * math.sin(EGO_YAW) + left * math.cos(EGO_YAW)
+    return V2xObject(oid, station, 0.0, x, yy, EGO_YAW + yaw_rel, speed, 0.0, 4.5, 1.8, emergency, surrogate, 1.0, 0)
+
+
+def recognizer(**obu):
+    cfg = build({"security": {"allow_unsecured": True}, "obu": obu})
+    return EgoRecognizer(cfg.obu, cfg.vehicle)
+
+
+@pytest.mark.parametrize("case, obj, v_ego", [
+    # a fresh RSU track overshoots: 15.3 m/s for the cav at 8.3 (the old rule wanted 2 m/s agreement)
+    ("overshooting speed", dict(ahead=1.0, left=0.2, speed=15.3), 8.333),
+    # standing: the track's heading flips, its speed is noise above 1 m/s
+    ("flipped heading while standing", dict(ahead=-0.8, left=0.3, yaw_rel=math.radians(173), speed=1.3), 0.0),
+    # braking from 8.3 to 3 m/s: the track still says 6.5 and lags behind
+    ("lagging speed while braking", dict(ahead=-1.5, left=0.1, speed=6.5), 3.0),
+    # the right turn: the track's heading and speed lag the vehicle's
+    ("lagging heading in the turn", dict(ahead=-1.2, left=-0.9, yaw_rel=math.radians(-40), speed=5.5), 3.4),
+])
+def test_a_surrogate_bsm_of_the_ego_is_the_ego_whatever_its_speed_and_heading(case, obj, v_ego):
+    state = ego_state(v_ego)
+    got = recognizer().check(v2x_obj(**obj), state, 0.0)
+    assert got.rule == "surrogate" and got.distance < 2.5, case
+    # the same BSM as a vehicle's own (PSID 0x20) fails the speed/heading test: the old rule, kept for those
+    assert recognizer().check(v2x_obj(**obj, surrogate=False), state, 0.0).rule is None, case
+
+
+def test_a_real_vehicle_beside_or_ahead_is_not_the_ego_however_alike():
+    rec, state = recognizer(), ego_state()
+    for ahead, left in ((0.0, 3.5), (0.0, -3.5), (2.0, 2.3), (-2.2, -2.2), (3.0, 0.0), (-3.0, 0.0), (5.0, 0.0)):
+        got = rec.check(v2x_obj(ahead, left, oid="v2x:0000000b"), state, 0.0)  # same speed and heading
+        assert got.rule is None and got.distance >= 2.5, (ahead, left)
+        assert not rec.held
+
+
+def test_the_emergency_vehicle_crossing_close_in_front_is_not_the_ego():
+    """The ev crosses 3.6 m ahead of the ego's centre, eastbound (its flank 0.2 m clear of the ego's nose):
+    never the ego, at any point of its crossing, also when the ego's own surrogate id is held meanwhile."""
+    rec, state = recognizer(), ego_state(3.0)
+    assert rec.check(v2x_obj(0.5, 0.0, speed=3.0, oid="v2x:00000ca5"), state, 0.0).rule == "surrogate"
+    for k in range(41):
+        across = -10.0 + 0.5 * k  # along its eastbound lane: ego-frame "left" is west
+        ev = v2x_obj(3.6, -across, yaw_rel=-math.pi / 2, speed=16.667, oid="v2x:000000e5", emergency=True)
+        got = rec.check(ev, state, 0.0)
+        assert got.rule is None, (across, got)
+    assert rec.held == {("rsu", "v2x:00000ca5")}
+    # the same ev as its own BSM, or standing with a flipped heading, is no more the ego
+    assert rec.check(v2x_obj(3.6, 0.0, yaw_rel=-math.pi / 2, speed=16.667, surrogate=False, oid="v2x:e5"),
+                     state, 0.0).rule is None
+
+
+def test_an_id_recognised_as_the_ego_is_held_within_twice_the_gate_and_forgotten_beyond():
+    rec = recognizer()
+    state = ego_state(6.0)
+    oid = "v2x:0000c0de"
+    assert rec.check(v2x_obj(1.0, 0.0, speed=6.0, oid=oid), state, 0.0).rule == "surrogate"
+    held = rec.check(v2x_obj(-4.0, 0.3, yaw_rel=math.radians(20), speed=3.5, oid=oid), state, 0.0)
+    assert held.rule == "hold" and 2.5 < held.distance < 5.0
+    # another station's BSM under the same temporary id, and a new id at the same spot, are not held
+    assert rec.check(v2x_obj(-4.0, 0.3, speed=3.5, oid=oid, station="rsu2"), state, 0.0).rule is None
+    assert rec.check(v2x_obj(-4.0, 0.3, speed=3.5, oid="v2x:0000beef"), state, 0.0).rule is None
+    # held: any heading while slow; a heading beyond 45 degrees at speed is not the ego
+    assert rec.check(v2x_obj(-4.0, 0.0, yaw_rel=math.radians(170), speed=1.0, oid=oid), state, 0.0).rule == "hold"
+    assert rec.check(v2x_obj(-4.0, 0.0, yaw_rel=math.radians(60), speed=6.0, oid=oid), state, 0.0).rule is None
+    assert rec.check(v2x_obj(-4.0, 0.0, speed=6.0, oid=oid), state, 0.0).rule is None  # forgotten
+    assert rec.check(v2x_obj(1.0, 0.0, speed=6.0, oid=oid), state, 0.0).rule == "surrogate"  # and again
+    assert rec.check(v2x_obj(-6.0, 0.0, speed=6.0, oid=oid), state, 0.0).rule is None  # beyond 5 m: forgotten
+    assert rec.check(v2x_obj(-4.0, 0.0, speed=6.0, oid=oid), state, 0.0).rule is None and not rec.held
+    # the hold gate follows the keys
+    wide = recognizer(self_hold_factor=3.0, self_hold_heading_deg=10.0)
+    assert wide.check(v2x_obj(1.0, 0.0, speed=6.0, oid=oid), state, 0.0).rule == "surrogate"
+    assert wide.check(v2x_obj(-6.0, 0.0, yaw_rel=math.radians(5), oid=oid), state, 0.0).rule == "hold"
+    assert wide.check(v2x_obj(-6.0, 0.0, yaw_rel=math.radians(15), oid=oid), state, 0.0).rule is None
+
+
+def test_a_vehicles_own_bsm_keeps_the_old_rule_and_no_hold():
+    rec, state = recognizer(), ego_state(8.0)
+    own = dict(surrogate=False, oid="v2x:00000020")
+    assert rec.check(v2x_obj(1.0, 0.2, yaw_rel=math.radians(20), speed=9.5, **own), state, 0.0).rule == "own_bsm"
+    assert rec.check(v2x_obj(1.0, 0.2, speed=15.0, **own), state, 0.0).rule is None  # speed off by > 2 m/s
+    assert rec.check(v2x_obj(1.0, 0.2, yaw_rel=math.radians(35), **own), state, 0.0).rule is None  # heading > 30
+    assert rec.check(v2x_obj(2.6, 0.0, **own), state, 0.0).rule is None  # beyond the gate
+    assert rec.check(v2x_obj(4.0, 0.0, **own), state, 0.0).rule is None and not rec.held  # no hysteresis
+    standing = ego_state(0.0)
+    assert rec.check(v2x_obj(0.5, 0.0, yaw_rel=math.pi, speed=0.4, **own), standing, 0.0).rule == "own_bsm"
+    assert rec.check(v2x_obj(0.5, 0.0, yaw_rel=math.pi, speed=1.3, **own), standing, 0.0).rule is None
+
+
+def test_the_self_gate_is_predicted_to_the_planning_time_and_zero_turns_it_off():
+    rec, state = recognizer(), ego_state(8.0)
+    # measured 0.1 s ago 0.8 m behind at the ego's speed: where the ego is now
+    stale = v2x_obj(-0.8 - 0.1 * 8.0, 0.0, speed=8.0)
+    assert rec.check(stale, state, 0.1).distance == pytest.approx(0.8, abs=1e-6)
+    assert recognizer(self_gate_m=0.0).check(v2x_obj(0.0, 0.0), state, 0.0).rule is None
+
+
+def test_self_keys_are_validated_with_a_did_you_mean():
+    with pytest.raises(ConfigError) as exc:
+        build({"security": {"allow_unsecured": True},
+               "obu": {"self_hold_factr": 2.0, "self_hold_factor": 0.5, "self_hold_heading_deg": 200,
+                       "self_hold_slow_speed": -1, "self_gate_m": "far"}})
+    problems = "\n".join(exc.value.problems)
+    for expected in ("obu.self_hold_factr: unknown key (did you mean 'self_hold_factor'?)",
+                     "obu.self_hold_factor: expected 1.0..inf, got 0.5",
+                     "obu.self_hold_heading_deg: expected 0.0..180.0, got 200",
+                     "obu.self_hold_slow_speed: expected 0.0..inf, got -1",
+                     "obu.self_gate_m: expected a number, got 'far'"):
+        assert expected in problems, problems
+
+
+def drive(core, frames, t_end=1.0, y0=-60.0, v=8.333):
+    """The ego at constant speed northbound, far enough from its turn not to slow for it; `frames` (arrival,
+    bytes) go in as they arrive; the commands (t, accel, decision)."""
+    out = []
+    for k in range(int(round(t_end / 0.02)) + 1):
+        t = round(0.02 * k, 10)
+        feed_ego(core, t, y0 + v * t, v)
+        for arrival, f in frames:
+            if t - 0.02 < arrival <= t:
+                core.on_v2x(f, arrival)
+        core.command(t, lambda a, s, m: out.append((t, a, core.last_plan.decision if core.last_plan else None))
+                     or len(out))
+    return out
+
+
+def ego_bsms(pki, dy=0.0, speed=15.3, yaw=math.pi / 2, emergency=False, signer="rsu", t_end=1.0, track=4):
+    """Surrogate BSMs at 10 Hz centred `dy` m ahead of the moving ego's centre (rear axle y = -60 + 8.333 t)."""
+    return [(0.1 * k + 0.003, signed(pki[signer], bsm(0.1 * k, 1.75, -58.7 + 8.333 * 0.1 * k + dy, yaw, speed,
+                                                      track=track, emergency=emergency), 0.1 * k))
+            for k in range(int(t_end * 10) + 1)]
+
+
+def test_the_rsus_bsm_of_the_ego_at_a_wrong_speed_makes_no_phantom_brake(pki):
+    """The closed-loop failure: the RSU's first BSMs of the cav say 15.3 m/s; the cav must not brake for them."""
+    core = core_for(pki)
+    out = drive(core, ego_bsms(pki, dy=0.6, speed=15.3))
+    assert min(a for _, a, _ in out) > -0.5 and {d for _, _, d in out} == {"cruise"}
+    assert core.last_objects == [] and core.health.self_bsms["surrogate"] >= 9
+    assert core.health.counts["v2x_self"] > core.health.self_bsms["surrogate"]  # checked at every plan, counted once
+    summary = core.health.summary()
+    assert summary["v2x_self_bsms"] == dict(core.health.self_bsms) and "v2x_self:surrogate" in summary["first_s"]
+    rec = core.plan_record(1.0)
+    assert rec["self"][0][:2] == ["v2x:" + surrogate_bsm(4, b"salt").temporary_id.hex(), "surrogate"]
+
+
+def test_a_validly_signed_ghost_on_the_ego_is_taken_for_the_ego_and_one_ahead_makes_it_brake(pki):
+    # an "emergency vehicle" whose centre is on the ego, crossing it: it can only be the ego (or a lie that hides
+    # nothing but itself): no brake
+    core = core_for(pki)
+    out = drive(core, ego_bsms(pki, dy=0.0, speed=16.667, yaw=0.0, emergency=True))
+    assert min(a for _, a, _ in out) > -0.5 and core.health.self_bsms["surrogate"] >= 9
+    # a ghost crossing the ego's lane 15 m ahead, in the conflict zone: validly signed, it is an obstacle, not the
+    # ego: the cav brakes for it
+    def ghost(signer):
+        return [(0.1 * k + 0.003, signed(pki[signer], bsm(0.1 * k, -20.0 + 8.0 * 0.1 * k, -45.0, 0.0, 8.0, track=7,
+                                                          emergency=True), 0.1 * k)) for k in range(11)]
+
+    core = core_for(pki)
+    out = drive(core, ghost("rsu"))
+    assert {"yield", "brake_hard"} & {d for _, _, d in out} and min(a for _, a, _ in out) < -3.0
+    assert not core.health.self_bsms and core.health.counts["v2x_self"] == 0
+    # forged, it never gets past the OBU: rejected for its signature, not left out as the ego
+    core = core_for(pki)
+    forged = ghost("forger")
+    out = drive(core, forged)
+    assert {d for _, _, d in out} == {"cruise"} and min(a for _, a, _ in out) > -0.5
+    assert core.obu.received >= 10 and core.obu.rejected == {"bad-signature": core.obu.received}
+    assert not core.health.self_bsms and core.health.counts["v2x_self"] == 0
 
 
 def test_nothing_before_the_first_fix_hands_the_vehicle_back(pki):

@@ -214,6 +214,7 @@ def test_true_bsms_the_cav_yields_and_the_footprints_never_overlap(true_bsms):
     assert av["obu"]["rejected"] == {} and av["obu"]["accepted"]["bsm"] >= 100  # 10 Hz over 12 s, through the air
     col = run.collision()
     assert not col["collision"] and col["min_gap_m"] > 1.0, col
+    assert av["v2x_self_bsms"] == {} and av["counts"].get("v2x_self", 0) == 0  # the ev is never taken for the ego
     # it slowed early and gently (the BSMs announce the ev seconds before the lidar could see it)
     assert av["first_s"]["first_brake"] < 3.5
     accel = run.col("cav.accel_cmd")
@@ -320,6 +321,7 @@ def test_attacks_are_rejected_by_reason_and_the_cav_does_not_brake(attacks):
     assert rejected.get("outside-time-window", 0) >= 0.8 * sent["replayed_stale"]
     assert rejected.get("replayed", 0) >= 0.8 * sent["replayed_duplicate"]
     assert av["obu"]["accepted"]["bsm"] <= sent["beacon"]  # only the harmless beacon got through
+    assert av["v2x_self_bsms"] == {}  # the ghost was refused by the OBU, not left out as the ego
     assert set(av["decisions"]) <= {"cruise"}  # never yielded, never braked for the ghost
     v = run.col("cav.v")
     v_turn = math.sqrt(2.0 * 6.0)
@@ -341,3 +343,4 @@ def test_the_same_ghost_validly_signed_makes_the_cav_yield(ghost):
     assert av["obu"]["rejected"] == {} and av["obu"]["accepted"]["bsm"] >= 60
     assert "yield" in av["decisions"]
     assert ghost.col("cav.v").min() < 2.0
+    assert av["v2x_self_bsms"] == {}  # a ghost in the conflict zone is an obstacle, never taken for the ego
