@@ -7,6 +7,7 @@ import math
 import subprocess
 import sys
 import time
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import numpy as np
@@ -35,10 +36,13 @@ EPOCH = time.time() + 60.0  # the run "begins" after the test certificates are i
 def pki():
     from cryptography.hazmat.primitives.asymmetric import ec
 
-    ca, other = ScenarioCA.create(), ScenarioCA.create()
-    rsu = ca.issue("rsu", [PSID_SURROGATE_BSM, PSID_SPAT_MAP])
+    # valid from an hour ago: EPOCH is fixed when the module is collected, which in a full run can be
+    # minutes before this fixture runs, and the certificates must already be valid at the frames' times
+    start = datetime.now(timezone.utc) - timedelta(hours=1)
+    ca, other = ScenarioCA.create(start=start), ScenarioCA.create(start=start)
+    rsu = ca.issue("rsu", [PSID_SURROGATE_BSM, PSID_SPAT_MAP], start=start)
     # every frame carries the full certificate (interval 0), so each test's fresh OBU can verify it
-    return {"ca": ca, "rsu": Signer(rsu, 0.0), "other": Signer(other.issue("rsu", [PSID_SURROGATE_BSM]), 0.0),
+    return {"ca": ca, "rsu": Signer(rsu, 0.0), "other": Signer(other.issue("rsu", [PSID_SURROGATE_BSM], start=start), 0.0),
             "forger": Signer(Credentials(rsu.certificate, ec.generate_private_key(ec.SECP256R1())), 0.0)}
 
 
