@@ -11,10 +11,12 @@ time, no I/O); this module wires it to the world:
    the geodetic origin, the Unix time of simulation time 0, the intersection
    and its signal heads;
 4. lockstep: per tick, the frames due (waiting, bounded, for a frame that is
-   due), the controller answers that arrived, `core.step(t)`, publish (the
-   V2X frames, then the frames' "detections" trace records on trace/<name>
-   when `app.trace_detections`), ack; realtime: the same on the simulation
-   time read off the master's clock;
+   due), the controller answers that arrived, `core.step(t)` up to the next
+   step's end (what is due before it is handed over now, so the master puts
+   it on the air at its stamp: `RsuCore`), publish (the V2X frames, then the
+   frames' "detections" trace records on trace/<name> when
+   `app.trace_detections`), ack; realtime: the same on the simulation time
+   read off the master's clock;
 5. at the end (the master ends the run, or SIGTERM): the JSON summary on stdout.
 """
 from __future__ import annotations
@@ -232,11 +234,23 @@ class RsuApp:
             self.t_sim = tick.t
             frames = self.ingest.collect(tick.t, wait=True) if self.ingest is not None else []
             statuses = [(a.status, a.wire_bytes) for a in self.link.collect()] if self.link is not None else []
-            self._publish(self.core.step(tick.t, frames, statuses))
+            self._publish(self.core.step(tick.t, frames, statuses, self._horizon(tick)))
             self._trace(self.core.take_records())
             self.part.ack(tick, time.perf_counter() - c0)
             self.ticks += 1
             self.health.maybe_report()
+
+    def _horizon(self, tick) -> float | None:
+        """Lockstep: the earliest simulation time an input still to come may have (`RsuCore.step` works ahead
+        up to it, so what is due before the master's next step reaches the air at its stamp). Camera frames are
+        samples of the master's steps, each taken at the first tick at or after it: the next one is at t + step
+        or later. Statuses are dated by their tick: the next one is sync_every steps on. None without a step."""
+        step = float(getattr(tick, "step", 0.0) or 0.0)
+        if not step > 0:
+            return None
+        if self.ingest is not None:
+            return tick.t + step
+        return tick.t + step * max(1, int(getattr(self.welcome, "sync_every", 1) or 1))
 
     def _realtime(self) -> None:
         while True:

@@ -1,11 +1,12 @@
 """The RSU in simulated time: a small discrete-event core, no bus, no threads (tested in-process).
 
-`RsuCore.step(t, frames, statuses)` is called once per tick of the master
-(lockstep) or per loop turn (realtime) with the camera frames and controller
-statuses that arrived by t, and returns the frames to transmit. Inside, every
-happening is an event at its own simulation time, processed in time order up
-to t, so what the RSU sends and when depends only on simulation times and
-data stamped <= t (lockstep + `fixed` latencies repeat bit for bit):
+`RsuCore.step(t, frames, statuses, horizon)` is called once per tick of the
+master (lockstep) or per loop turn (realtime) with the camera frames and
+controller statuses that arrived by t, and returns the frames to transmit.
+Inside, every happening is an event at its own simulation time, processed in
+time order up to t (lockstep: up to the horizon, below), so what the RSU sends
+and when depends only on simulation times and data stamped <= t (lockstep +
+`fixed` latencies repeat bit for bit):
 
     FRAME  at the frame's time: if the camera's detector is free (BusyGate),
            detect + project now, and schedule READY at frame time + stage-1
@@ -20,6 +21,38 @@ data stamped <= t (lockstep + `fixed` latencies repeat bit for bit):
 At equal times READY comes before STATUS, FRAME and the slots, so a slot sees
 every detection ready by its time and a frame's projection sees the tracks
 known at its time.
+
+Working ahead of the tick (lockstep, `horizon`). The master runs the step
+[t, t + h) after the answers to its tick of t, and the air puts a frame on at
+its t_sim only if that is not before the step: one stamped before t goes out
+at t, counted late. So what is due between two ticks (off the tick grid:
+`measured` latencies, a hardware profile's inference time, a SPaT or MAP rate
+that is no multiple of the tick) must be handed over at the tick before it.
+`step` therefore also processes, at their own times and in the same order, the
+events before `horizon` (less AHEAD_MARGIN): the earliest simulation time an
+input not handed over yet may have. This changes nothing but the tick:
+
+* after t the queue holds only READY (of frames already taken), BSM, SPaT and
+  MAP events; FRAME and STATUS events are pushed at times <= t;
+* an input still to come makes no event before its own time: a status is
+  dated by the tick at which it arrives, a frame is processed at its time or
+  later, and its READY is later still;
+* camera frames are samples of the master's steps, each handed over at the
+  first tick at or after its time: at the tick of t every frame not handed
+  over yet has a time >= t + the master's step (`Tick.step`).
+
+Hence an event before the horizon sees, processed now, exactly what it would
+see processed at a later tick (every READY by a slot's time, READY before a
+slot of the same time, no frame or status after it), and gives the same bytes
+and stamps; the master puts the frame on the air at its stamp. The app passes
+t + step (t + sync_every x step without a camera: statuses only). With a tick
+every step that is the next tick and nothing reaches the air late. With
+`sync_every` > 1, frames of (t, t + h) come only at the next tick and may still
+change a slot there, so what is due in [t + step, t + h) waits for that tick,
+as without a horizon, and still reaches the air late (use sync_every = 1).
+Work done ahead counts as done (`self.t`): a frame that comes after its own
+tick (the camera ingest gave up waiting for it) is processed at the latest time
+already done, never before it. Realtime ignores the horizon.
 
 With `trace_detections`, each READY also leaves one "detections" trace record
 per frame it makes known (`perception_stage.detection_record`: boxes, labels,
@@ -42,6 +75,9 @@ from rsu_app.timing import DETECT, LatencyModel
 
 log = logging.getLogger(__name__)
 READY, STATUS, FRAME, BSM, SPAT, MAP = range(6)
+# s: how far before the horizon work ahead stops. Only float noise separates the horizon (t + step) from the
+# time of the master's next frame; anything this close to it is done at the next tick, as without a horizon.
+AHEAD_MARGIN = 1e-9
 
 
 @dataclass
@@ -87,9 +123,11 @@ class RsuCore:
         heapq.heappush(self._events, (t, kind, next(self._order), payload))
 
     # -- the one entry point ---------------------------------------------------------------------------
-    def step(self, t: float, frames=(), statuses=()) -> list[Transmission]:
+    def step(self, t: float, frames=(), statuses=(), horizon: float | None = None) -> list[Transmission]:
         """Everything up to simulation time t. `frames`: camera frames of time <= t (realtime: processed
-        now); `statuses`: (status, wire_bytes) answers of the controller that arrived by t."""
+        now); `statuses`: (status, wire_bytes) answers of the controller that arrived by t. `horizon`
+        (lockstep; ignored in realtime): no input still to come has a time before it, so the events before it
+        are processed now too, at their own times (see the module's docstring)."""
         if self._periods:
             self._start_clocks(t)
         for status, wire_bytes in statuses:
@@ -97,9 +135,15 @@ class RsuCore:
         for frame in frames:
             when = max(frame.t, t) if self.realtime else min(max(frame.t, self.t), t)  # never before done work
             self._push(when, FRAME, frame)
+        until = t + EPS
+        if horizon is not None and not self.realtime:
+            until = max(until, horizon - AHEAD_MARGIN)
+        done = max(self.t, t)
         out: list[Transmission] = []
-        while self._events and self._events[0][0] <= t + EPS:
+        while self._events and self._events[0][0] <= until:
             when, kind, _, payload = heapq.heappop(self._events)
+            if when > t + EPS:
+                done = max(done, when)  # ahead of the tick
             base = max(when, t) if self.realtime else when  # realtime: late work happens now
             if kind == READY:
                 self._ready(when, payload)
@@ -121,7 +165,7 @@ class RsuCore:
                     out.append(tx)
                 n = self._next_slot(start, period, n, t)
                 self._push(start + n * period, kind, (start, period, n))
-        self.t = max(self.t, t)
+        self.t = done
         return out
 
     def take_records(self) -> list[dict]:

@@ -116,9 +116,10 @@ def make_core(policy="fixed", latencies=None, inference_s=None, vehicles=(CAV, E
     return core, oracle, list(vehicles)
 
 
-def run(core, vehicles, stop=4.0, step=0.01, rate=10.0, records=None):
+def run(core, vehicles, stop=4.0, step=0.01, rate=10.0, records=None, ahead=True):
     """Drive the core like the master: a tick every step, a frame every 1/rate, seen at its tick; the trace
-    records it makes go to `records` (taken after every step, as the app does)."""
+    records it makes go to `records` (taken after every step, as the app does). `ahead`: as the app, tell the
+    core that nothing still to come is before the next step (`RsuCore.step`'s horizon)."""
     out, frame_id = [], 0
     for k in range(int(round(stop / step)) + 1):
         t = round(k * step, 9)
@@ -126,7 +127,7 @@ def run(core, vehicles, stop=4.0, step=0.01, rate=10.0, records=None):
         if abs(t * rate - round(t * rate)) < 1e-6:
             frames.append(FakeFrame("rsu_cam", frame_id, t, Pixels(t, vehicles)))
             frame_id += 1
-        out += core.step(t, frames)
+        out += core.step(t, frames, horizon=t + step if ahead else None)
         if records is not None:
             records += core.take_records()
     return out
@@ -447,3 +448,215 @@ def test_map_of_the_case_study_intersection():
     assert lane.lane_id == 11 and to_stop == pytest.approx(35.5)
     with pytest.raises(ValueError, match="no intersection"):
         intersection_geometry({}, ORIGIN, 1, 1, 1.0)
+
+
+# -- work ahead of the tick (lockstep horizon) -------------------------------------------------------------
+class FakeMeasured(LatencyModel):
+    """The `measured` policy with a fake compute time per stage: off the 10 ms grid, as real compute times are."""
+
+    def __init__(self, values):
+        super().__init__("lockstep", "measured")
+        self.values = dict(values)
+
+    def stage(self, name, compute_s):
+        return self.values[name]
+
+
+MEASURED = {"detect": 0.0731, "encode": 0.00037, "sign": 0.00113}
+
+
+def measured_core(values=MEASURED, hits=3):
+    core, oracle, vehicles = make_core(policy="measured", latencies={}, hits=hits, trace=True)
+    core.latency = core.bsm.latency = FakeMeasured(values)
+    return core, oracle, vehicles
+
+
+def drive(core, vehicles, stop, step=0.01, every=1, rate=10.0, statuses_every=0, ahead=True):
+    """Like the master and the app: a step of `step`, a tick every `every` steps; camera frames are samples at
+    step ends every 1/rate, each handed over at the first tick at or after it; with `ahead`, the horizon the
+    app gives (the next step's end with a camera, the next tick without). Returns (tick index, transmission)
+    and (tick index, record) pairs."""
+    out, records, pending, frame_id = [], [], [], 0
+    for k in range(int(round(stop / step)) + 1):
+        t = round(k * step, 9)
+        if vehicles is not None and abs(t * rate - round(t * rate)) < 1e-6:
+            pending.append(FakeFrame("rsu_cam", frame_id, t, Pixels(t, vehicles)))
+            frame_id += 1
+        if k % every:
+            continue
+        statuses = [(long_status(greens=0b10 if (k // 50) % 2 else 0b100000), 40)] \
+            if statuses_every and k % statuses_every == 0 else []
+        frames, pending = pending, []
+        horizon = (t + step * (1 if vehicles is not None else every)) if ahead else None
+        out += [(k, tx) for tx in core.step(t, frames, statuses, horizon)]
+        records += [(k, r) for r in core.take_records()]
+    return out, records
+
+
+def spat_map_core(spat_hz=10.0, map_hz=1.0):
+    world = {"intersection": INTERSECTION,
+             "signals": [{"name": "nb", "x": 5, "y": 5, "yaw": 270.0, "signal_group": 2},
+                         {"name": "eb", "x": 5, "y": -5, "yaw": 180.0, "signal_group": 8}]}
+    latency = LatencyModel("lockstep", "fixed", {"encode": 0.001, "sign": 0.001})
+    geometry = intersection_geometry(world, ORIGIN, 7, 1, 1.0)
+    return RsuCore(latency, spat=spat_stage(), map_stage=MapStage("rsu", EPOCH, Envelope(None), latency, geometry, 1),
+                   spat_rate_hz=spat_hz, map_rate_hz=map_hz)
+
+
+def digest(items) -> str:
+    import hashlib
+
+    return hashlib.sha256(json.dumps(items).encode()).hexdigest()[:16]
+
+
+def fingerprint(out, records) -> dict:
+    sent = [(k, tx.key, tx.payload.hex(), repr(tx.t_sim), sorted(tx.stamps.items()), tx.kind, tx.object_id)
+            for k, tx in out]
+    recs = [(k, json.dumps(r, sort_keys=True)) for k, r in records]
+    return {"n": len(sent), "nrec": len(recs), "tx": digest([s[1:] for s in sent]), "tx_ticks": digest(sent),
+            "rec": digest([r[1] for r in recs]), "rec_ticks": digest(recs)}
+
+
+# Recorded with the core as it was before it worked ahead of the tick (commit 61fc8f7, `drive(ahead=False)`):
+# every transmission's bytes, t_sim and stamps and every trace record, and for the cases whose slots fall on
+# the tick grid also the tick each was handed over at. Off the grid (a hardware profile's 1/30 s, fixed
+# latencies like 43.7 ms, SPaT at 3 Hz, MAP at 0.7 Hz) the same frames now come at an earlier tick.
+PINNED = {
+    "default": ({}, {}, True,
+                {"n": 56, "nrec": 30, "tx": "4c50e9edc19d8ae3", "tx_ticks": "f0a9ef15acafe5e0",
+                 "rec": "975470e604eb35ef", "rec_ticks": "a288691f41a1247f"}),
+    "slow": ({"latencies": {"detect": 0.3, "encode": 0.004, "sign": 0.006}}, {}, True,
+             {"n": 44, "nrec": 10, "tx": "698800952c9ab152", "tx_ticks": "81cc92441acfcafb",
+              "rec": "d38f40d12ee8e030", "rec_ticks": "07334a4da51bda55"}),
+    "gpu": ({"inference_s": 1 / 30, "hits": 1}, {}, False,
+            {"n": 60, "nrec": 30, "tx": "3a33ad270fbab98c", "rec": "6679d9f8dc8e932b"}),
+    "quarter": ({"inference_s": 0.25, "hits": 1}, {}, True,
+                {"n": 56, "nrec": 10, "tx": "24b3fa7814102ba3", "tx_ticks": "87ff04c8a1d24c53",
+                 "rec": "261e546a14ebdbde", "rec_ticks": "24c4ce53bfa145ad"}),
+    "offgrid": ({"latencies": {"detect": 0.0437, "encode": 0.0011, "sign": 0.0023}}, {}, False,
+                {"n": 56, "nrec": 30, "tx": "342ff082e0601d8b", "rec": "929682cf28e4709f"}),
+    "offgrid_every3": ({"latencies": {"detect": 0.0437, "encode": 0.0011, "sign": 0.0023}}, {"every": 3}, False,
+                       {"n": 56, "nrec": 30, "tx": "342ff082e0601d8b", "rec": "929682cf28e4709f"}),
+    "default_every4": ({}, {"every": 4}, True,
+                       {"n": 56, "nrec": 30, "tx": "4c50e9edc19d8ae3", "tx_ticks": "24ba62d87074b1b3",
+                        "rec": "975470e604eb35ef", "rec_ticks": "35ebb6e9931c02ad"}),
+    "spat": (None, {"statuses_every": 7}, True,
+             {"n": 35, "nrec": 0, "tx": "12c23bcf71ab8e6b", "tx_ticks": "de83af06f0489374"}),
+    "spat_offgrid": ((3.0, 0.7), {"statuses_every": 7}, False, {"n": 13, "nrec": 0, "tx": "f27dda0df7efb303"}),
+}
+
+
+@pytest.mark.parametrize("case", sorted(PINNED))
+@pytest.mark.parametrize("ahead", [True, False])
+def test_fixed_policy_output_is_pinned(case, ahead):
+    """Fixed latencies: the same bytes with the same t_sim and stamps as before the core worked ahead of the
+    tick (and at the same ticks where the slots fall on them), whether the app gives a horizon or not. The
+    digests cover the J2735 bytes of oracle-driven tracks: a platform whose float results differ in the last
+    bit could shift a quantised field; the same machine repeats them bit for bit."""
+    options, drive_options, same_ticks, pinned = PINNED[case]
+    if case.startswith("spat"):
+        core, vehicles = spat_map_core(*(options or ())), None
+    else:
+        core, _, vehicles = make_core(trace=True, **options)
+    got = fingerprint(*drive(core, vehicles, 3.0, ahead=ahead, **drive_options))
+    keys = [k for k in pinned if same_ticks or not ahead or not k.endswith("_ticks")]
+    assert {k: got[k] for k in keys} == {k: pinned[k] for k in keys}
+
+
+def test_measured_bsms_are_handed_over_before_the_step_that_contains_their_stamp():
+    core, _, vehicles = measured_core()
+    out, records = drive(core, vehicles, 4.0)
+    sent = [(k, tx, Bsm.decode(open_unsecured(tx.payload))) for k, tx in out if tx.kind == "bsm"]
+    assert len(sent) > 50
+    enc, sign = MEASURED["encode"], MEASURED["sign"]
+    first_ready = records[0][1]["detect_end"]
+    assert first_ready == pytest.approx(0.0731)  # the BSM clock starts off the 10 ms grid
+    slots: dict[int, list] = {}
+    for k, tx, b in sent:
+        t = k * 0.01
+        # never in the past of the step the master is about to run; the slot itself before the next tick
+        assert tx.t_sim >= t - 1e-9
+        n = round((stamp_s(tx.stamps[ENCODE]) - first_ready) / 0.1)
+        slot = first_ready + n * 0.1
+        assert t - 1e-9 <= slot < t + 0.01
+        slots.setdefault(n, []).append((tx, b))
+    numbers = sorted(slots)
+    assert numbers == list(range(numbers[0], numbers[-1] + 1))  # a slot every 0.1 s, none lost or doubled
+    for n, msgs in slots.items():
+        slot = first_ready + n * 0.1
+        for i, (tx, b) in enumerate(msgs):  # stage 2 of one slot's BSMs one after the other, from the slot
+            assert stamp_s(tx.stamps[ENCODE]) == pytest.approx(slot + i * (enc + sign) + enc, abs=2e-9)
+            assert abs(tx.stamps[SIGN] - tx.stamps[ENCODE] - stamp_ns(sign)) <= 1
+            assert tx.stamps[SEND] == tx.stamps[SIGN] and tx.t_sim == pytest.approx(stamp_s(tx.stamps[SEND]))
+            assert b.sec_mark_ms == sec_mark_ms(EPOCH + slot)
+            assert tx.stamps[DETECT_END] <= tx.stamps[ENCODE]  # every detection ready by the slot
+
+
+def test_working_ahead_changes_what_is_sent_in_nothing_but_the_tick():
+    """Measured-like latencies, a tick every step and a tick every 3 steps (frames of between the ticks come
+    at the next one): the same frames with the same stamps and records as without a horizon."""
+    for every in (1, 3):
+        ahead, ahead_records = drive(measured_core()[0], measured_core()[2], 3.0, every=every)
+        behind, behind_records = drive(measured_core()[0], measured_core()[2], 3.0, every=every, ahead=False)
+        assert len(ahead) > 40
+        a, b = fingerprint(ahead, ahead_records), fingerprint(behind, behind_records)
+        assert (a["tx"], a["rec"]) == (b["tx"], b["rec"]) and a["tx_ticks"] != b["tx_ticks"]
+        late = sum(tx.t_sim < k * 0.01 - 1e-9 for k, tx in behind)
+        early = sum(tx.t_sim < k * 0.01 - 1e-9 for k, tx in ahead)
+        assert late == len(behind)  # off the grid, every one of them stamped before the tick that hands it over
+        if every == 1:
+            assert early == 0
+        else:  # the horizon is the next step's end: what falls in the two steps after it still waits
+            assert 0 < early < late
+
+
+def test_a_tick_every_three_steps_works_ahead_only_up_to_the_next_step():
+    """Frames of the two steps after the next one come at the next tick and may still change a slot there, so a
+    slot is handed over at the first tick whose next step contains it (or at the tick after it)."""
+    core, _, vehicles = measured_core()
+    out, _ = drive(core, vehicles, 3.0, every=3)
+    firsts = [(k, tx) for i, (k, tx) in enumerate(out) if tx.kind == "bsm" and (i == 0 or out[i - 1][0] != k)]
+    assert len(firsts) > 20
+    for k, tx in firsts:  # the first BSM of its tick's slot
+        t, slot = k * 0.01, stamp_s(tx.stamps[ENCODE]) - MEASURED["encode"]
+        assert t - 0.03 + 0.01 - 1e-9 < slot < t + 0.01 + 1e-9
+
+
+def test_a_frame_after_its_tick_is_processed_after_the_work_done_ahead():
+    core, _, vehicles = measured_core(hits=1)
+    core.step(0.0, [FakeFrame("rsu_cam", 0, 0.0, Pixels(0.0, vehicles))], horizon=0.01)
+    core.step(0.07, horizon=0.08)  # the first ready time, 0.0731, and its slot are before 0.08: done now
+    first = core.take_records()
+    assert [r["detect_end"] for r in first] == [pytest.approx(0.0731)] and core.t == pytest.approx(0.0731)
+    # a frame of 0.05 that the camera ingest gave up waiting for comes at 0.08: after the work done, not before
+    core.step(0.08, [FakeFrame("rsu_cam", 1, 0.05, Pixels(0.05, vehicles))], horizon=0.09)
+    core.step(0.2, horizon=0.21)
+    late = core.take_records()
+    assert [r["detect_start"] for r in late] == [pytest.approx(0.0731)]  # not 0.07: the detector is free again
+    assert [r["detect_end"] for r in late] == [pytest.approx(0.1462)]
+
+
+def test_realtime_ignores_the_horizon():
+    latency = LatencyModel("realtime", "realtime", {}, None)
+    perception = PerceptionStage(Oracle(), Tracker(TrackerConfig(confirm_hits=1)),
+                                 DetectionZone(60.0, INTERSECTION, True, 1.5), 0.5)
+    core = RsuCore(latency, perception, BsmStage("rsu", ORIGIN, EPOCH, b"s", Envelope(None), latency), realtime=True,
+                   trace_detections=True)
+    out = core.step(0.0, [FakeFrame("rsu_cam", 0, 0.0, Pixels(0.0, [CAV]))], horizon=1.0)
+    assert out == [] and core.take_records() == [] and core.t == 0.0  # the detections are ready after 0.0
+    assert len(bsms(core.step(0.05))) == 1
+
+
+def test_the_apps_horizon_is_the_next_input_time():
+    from types import SimpleNamespace
+
+    from bridges.timesync.messages import Tick
+    from rsu_app.app import RsuApp
+    from rsu_app.config import build_settings
+
+    app = RsuApp(build_settings({}, {"security": {"mode": "unsecured"}, "camera": {"names": []}}, {}))
+    app.welcome = SimpleNamespace(sync_every=3)
+    assert app._horizon(Tick(5, 0.05, 0.01)) == pytest.approx(0.08)  # statuses only: the next tick
+    app.ingest = object()
+    assert app._horizon(Tick(5, 0.05, 0.01)) == pytest.approx(0.06)  # a camera: the master's next step
+    assert app._horizon(Tick(5, 0.05)) is None  # a master that sends no step: no work ahead
