@@ -54,9 +54,15 @@ class Transmission:
     compute_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage
 
 
-def sec_mark_ms(unix_s: float) -> int:
-    """Milliseconds within the UTC minute (J2735 DSecond; no leap seconds in a simulation)."""
-    return int(math.floor(unix_s * 1000.0 + 1e-6)) % 60000
+def sec_mark_ms(t_sim: float, epoch_unix_s: float) -> int:
+    """Milliseconds within the UTC minute of simulation time t_sim (J2735 DSecond; no leap seconds here).
+
+    Counted in whole milliseconds: the run's epoch rounded to its millisecond plus t_sim's millisecond.
+    Flooring the float Unix time epoch + t_sim instead made the value depend on where the epoch (the
+    wall clock when the run began) falls within its millisecond, and on the float rounding of a 1e9 s
+    sum, so a BSM's measurement time moved by 1 ms from run to run and lockstep runs did not repeat.
+    """
+    return (round(epoch_unix_s * 1000.0) + math.floor(t_sim * 1000.0 + 1e-6)) % 60000
 
 
 def minute_of_year(unix_s: float) -> int:
@@ -91,7 +97,7 @@ class BsmStage:
         count = self.msg_counts.get(s.id, -1) + 1
         self.msg_counts[s.id] = count % 128
         return surrogate_bsm(
-            s.id, self.salt, msg_count=count % 128, sec_mark_ms=sec_mark_ms(unix_time(t, self.epoch)),
+            s.id, self.salt, msg_count=count % 128, sec_mark_ms=sec_mark_ms(t, self.epoch),
             latitude=float(lat), longitude=float(lon), elevation=float(h), speed=float(s.speed), heading=heading,
             yaw_rate=0.0 if s.yaw_rate is None else round(-math.degrees(s.yaw_rate), 2), transmission="unavailable",
             width=width, length=length, semi_major=min(major, MAX_SEMI_AXIS), semi_minor=min(minor, MAX_SEMI_AXIS),

@@ -176,7 +176,7 @@ def test_sec_mark_and_stamps_follow_the_latency_policy():
     assert s[ENCODE] - s[DETECT_END] == stamp_ns(0.004) and s[SIGN] - s[ENCODE] == stamp_ns(0.006)
     assert s[SEND] == s[SIGN] and tx.t_sim == pytest.approx(stamp_s(s[SEND]))
     slot = stamp_s(s[ENCODE]) - 0.004
-    assert b.sec_mark_ms == sec_mark_ms(EPOCH + slot)
+    assert b.sec_mark_ms == sec_mark_ms(slot, EPOCH)
     # busy until 0.3 s after each frame it takes, the detector takes frames 0, 0.3, 0.6 (0.1, 0.2, 0.4, 0.5
     # are dropped); confirmed by the third, the track's first BSM goes in the slot of its ready time
     assert stamp_s(s[FRAME]) == pytest.approx(0.6) and slot == pytest.approx(0.9)
@@ -228,7 +228,7 @@ def test_realtime_a_late_loop_sends_one_late_bsm_per_track_not_a_burst():
     assert 0 < ready <= 0.05
     late = bsms(core.step(0.65))  # the loop comes back 0.6 s later: the slots in between are gone
     assert len(late) == 1 and core.counters.slots_skipped == 5
-    assert late[0][1].sec_mark_ms == sec_mark_ms(EPOCH + 0.65)  # sent now, describing now
+    assert late[0][1].sec_mark_ms == sec_mark_ms(0.65, EPOCH)  # sent now, describing now
 
 
 def test_tracks_that_age_out_stop_being_broadcast():
@@ -588,7 +588,7 @@ def test_measured_bsms_are_handed_over_before_the_step_that_contains_their_stamp
             assert stamp_s(tx.stamps[ENCODE]) == pytest.approx(slot + i * (enc + sign) + enc, abs=2e-9)
             assert abs(tx.stamps[SIGN] - tx.stamps[ENCODE] - stamp_ns(sign)) <= 1
             assert tx.stamps[SEND] == tx.stamps[SIGN] and tx.t_sim == pytest.approx(stamp_s(tx.stamps[SEND]))
-            assert b.sec_mark_ms == sec_mark_ms(EPOCH + slot)
+            assert b.sec_mark_ms == sec_mark_ms(slot, EPOCH)
             assert tx.stamps[DETECT_END] <= tx.stamps[ENCODE]  # every detection ready by the slot
 
 
