@@ -197,12 +197,17 @@ def run_metrics(run_dir: Path, meta: dict[str, Any]) -> dict[str, Any] | None:
 
 
 def _aoi(events: list[dict[str, Any]], t_end: float) -> dict[str, Any]:
-    """Age of information per "receiver<-subject" (when the air tied frames to a vehicle) and per link."""
+    """Age of information per "receiver<-subject" (when the air tied frames to a vehicle), sampled every
+    AOI_DT_S from the subject's first delivery to its last."""
     out: dict[str, Any] = {}
     pairs = {(e["to"], e["subject"]) for e in events
              if e.get("event") == "v2x_delivered" and e.get("subject") and "to" in e}
     for receiver, subject in sorted(pairs):
-        out[f"{receiver}<-{subject}"] = aoi_metrics(subject_deliveries(events, receiver, subject), t_end, AOI_DT_S)
+        deliveries = subject_deliveries(events, receiver, subject)
+        # while the subject is being reported: from its first to its last delivery (after that the RSU has
+        # lost sight of it, and an ever-growing age would say nothing about the link)
+        last = max((arrival for arrival, _ in deliveries), default=t_end)
+        out[f"{receiver}<-{subject}"] = aoi_metrics(deliveries, last, AOI_DT_S)
     return out
 
 
