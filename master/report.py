@@ -195,11 +195,22 @@ def _draw_top_down(ax, run: Run, every_s: float, span: float, label: str) -> Non
                                    zorder=4))
             ax.annotate(label.format(t[k]), (x[k], y[k]), fontsize=7, color=colour, zorder=6, annotation_clip=True)
     fc = run.metrics.get("first_collision")
-    if fc:
-        k = int(np.searchsorted(t, fc["t"]))
-        a = fc["pair"][0]
-        if k < len(t) and f"{a}.x" in run.series:
-            ax.plot(run.series[f"{a}.x"][k], run.series[f"{a}.y"][k], marker="X", color="red", ms=14, zorder=7)
+    if fc:  # both bodies at first contact, filled, and a cross between them
+        k = min(int(np.searchsorted(t, fc["t"] - 1e-9)), len(t) - 1)
+        centres = []
+        for name in fc["pair"]:
+            body = run.body(name)
+            if body is None or f"{name}.x" not in run.series:
+                continue
+            x, y, yaw = run.pose(name)
+            corners = body.corners(x[k], y[k], yaw[k])
+            ax.add_patch(Patch(corners, closed=True, fill=True, fc="#ff000055", ec="red", lw=1.2, zorder=6))
+            centres.append(corners.mean(axis=0))
+        if centres:
+            cx, cy = np.mean(centres, axis=0)
+            ax.plot(cx, cy, marker="X", color="red", ms=12, zorder=7)
+            ax.annotate(f"contact {fc['t']:.2f} s", (cx, cy), textcoords="offset points", xytext=(8, -12),
+                        color="red", fontsize=8, zorder=7)
     ax.set_xlim(-span, span)
     ax.set_ylim(-span, span)
     ax.set_aspect("equal")
