@@ -19,15 +19,10 @@ $(STAMP): pyproject.toml | $(BIN)/python
 fmus: $(STAMP)
 	$(BIN)/v2i build-fmus
 
-# The case study's keys: a scenario CA and the two stations' certificates (made once, kept out of git).
-KEYS := scenarios/keys/v2i-scenario-ca.cert
-$(KEYS): | fmus
-	$(BIN)/v2i pki init scenarios/keys --station rsu:0x7f,0x82 --station cav:0x20
-
 # The project's main job: the Intersection Movement Assist case study with and without the RSU's
 # perception service, in lockstep, each with its verdict, then both runs side by side in one report.
 DEMO := runs/demo-$(shell date +%Y%m%d-%H%M%S)
-demo: fmus $(KEYS)
+demo: fmus
 	$(BIN)/v2i run scenarios/ima_case_study.toml --out $(DEMO)/ima_case_study
 	$(BIN)/v2i run scenarios/ima_no_cps.toml --out $(DEMO)/ima_no_cps
 	$(BIN)/v2i report $(DEMO)/ima_case_study $(DEMO)/ima_no_cps

@@ -130,6 +130,10 @@ class CoSimulation:
         """
         sc = self.scenario
         hooks: list[Hook] = []
+        if sc.pki is not None:  # credentials before any app starts
+            from master.pki_section import PkiHook
+
+            hooks.append(PkiHook(sc.pki))
         if self.participants:
             hooks.append(TraceRecorder())
         if self.world is not None and sc.record_camera:

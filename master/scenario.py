@@ -92,6 +92,7 @@ class Scenario:
     participants: Any = None  # master.participants.ParticipantsSpec when the file has [bridge]/[participants]
     can: Any = None  # master.can_bridge.CanConfig when the file has [can]
     v2x: Any = None  # master.radio_bridge.V2xSpec when the file has [v2x]
+    pki: Any = None  # master.pki_section.PkiSpec when the file has [pki]
 
     def resolved(self) -> dict[str, Any]:
         """The scenario with defaults filled in and FMU paths resolved, for the run folder."""
@@ -113,6 +114,7 @@ class Scenario:
             **({"world": self.world.resolved()} if self.world is not None else {}),
             **({"can": self.can.resolved()} if self.can is not None else {}),
             **({"v2x": self.v2x.resolved()} if self.v2x is not None else {}),
+            **({"pki": self.pki.resolved()} if self.pki is not None else {}),
             **(self.participants.resolved() if self.participants is not None else {}),
         }
 

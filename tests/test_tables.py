@@ -222,7 +222,7 @@ def test_fmu_variable_checks_causality_and_type():
 
 # -- the sections -----------------------------------------------------------------------------------------
 def test_every_section_names_a_reader_that_exists():
-    assert section_keys() == ("serial", "world", "bridge", "participants", "can", "v2x")
+    assert section_keys() == ("serial", "world", "bridge", "participants", "can", "v2x", "pki")
     for section in SECTIONS:
         assert callable(section.load()), section
 
