@@ -352,7 +352,8 @@ class AvApp:
             s["obu"] = {"received": core.obu.received, "accepted": dict(core.obu.accepted),
                         "rejected": dict(core.obu.rejected)}
             s.update(core.health.summary())
-            s["ego"] = {"fixes": core.ego.fixes, "statuses": core.ego.statuses, "rejected": core.ego.rejected}
+            s["ego"] = {"fixes": core.ego.fixes, "statuses": core.ego.statuses, "rejected": core.ego.rejected,
+                        "resets": core.ego.resets}
             s["lidar"] = {"scans": core.tracker.scans, "tracks": len(core.tracker.tracks)}
             s["statuses_between_ticks"] = self.statuses_between_ticks
         if can is not None:

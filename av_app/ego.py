@@ -105,6 +105,7 @@ class EgoFilter:
         self.last_fix_t: float | None = None
         self.rejected = 0  # measurements refused (non-finite, much older than the filter)
         self.late = 0  # measurements a little older than the filter, taken as of its time (realtime)
+        self.resets = 0  # times the filter was started again from a fix (its covariance broke down)
         points = MerweScaledSigmaPoints(5, alpha=0.5, beta=2.0, kappa=0.0, sqrt_method=_sqrt, subtract=_residual_x)
         self.ukf = UnscentedKalmanFilter(5, 4, 0.02, _h_gnss, _fx, points, sqrt_fn=_sqrt, x_mean_fn=_mean_x,
                                          residual_x=_residual_x)
@@ -144,6 +145,19 @@ class EgoFilter:
             self.t = t
         return True
 
+    def _healthy(self) -> bool:
+        """A finite state and covariance (filterpy does not raise on NaN: it spreads them)."""
+        return bool(np.all(np.isfinite(self.ukf.x)) and np.all(np.isfinite(self.ukf.P)))
+
+    def _start(self, t: float, x: float, y: float, heading: float, speed: float) -> None:
+        """The filter from one fix (and the last AV_Status's speed and yaw rate, when one came first)."""
+        v, w = (self._pending_status[1], self._pending_status[2]) if self._pending_status else (speed, 0.0)
+        self.ukf.x = np.array([x, y, heading, v, w], float)
+        c = self.cfg
+        self.ukf.P = np.diag([c.gnss_sigma_h ** 2, c.gnss_sigma_h ** 2,
+                              math.radians(c.gnss_sigma_heading_deg) ** 2 * 4, 1.0, 0.1])
+        self.t = t
+
     def gnss(self, t: float, x: float, y: float, heading: float, speed: float) -> bool:
         """Take a fix at simulation time t; False if it was not usable."""
         values = (t, x, y, heading, speed)
@@ -151,16 +165,20 @@ class EgoFilter:
             self.rejected += 1
             return False
         if self.t is None:
-            v, w = (self._pending_status[1], self._pending_status[2]) if self._pending_status else (speed, 0.0)
-            self.ukf.x = np.array([x, y, heading, v, w], float)
-            c = self.cfg
-            self.ukf.P = np.diag([c.gnss_sigma_h ** 2, c.gnss_sigma_h ** 2,
-                                  math.radians(c.gnss_sigma_heading_deg) ** 2 * 4, 1.0, 0.1])
-            self.t = t
+            self._start(t, x, y, heading, speed)
         elif not self._advance(t):
             return False
         else:
-            self.ukf.update(np.array([x, y, heading, speed]), R=self.R_gnss, hx=_h_gnss)
+            try:
+                self.ukf.update(np.array([x, y, heading, speed]), R=self.R_gnss, hx=_h_gnss)
+                healthy = self._healthy()
+            except (np.linalg.LinAlgError, ValueError):
+                healthy = False
+            if not healthy:
+                # a covariance that lost its positive definiteness (e.g. inputs far out of order in a run
+                # that could not keep real time): start again from this fix rather than stop the vehicle
+                self.resets += 1
+                self._start(t, x, y, heading, speed)
         self.fixes += 1
         self.last_fix_t = t
         return True
@@ -176,7 +194,15 @@ class EgoFilter:
         if not self._advance(t):
             return False
         # the status measures speed and yaw rate only: a 2-D measurement through the same UKF
-        self.ukf.update(np.array([speed, yaw_rate]), R=self.R_status, hx=_h_status)
+        try:
+            self.ukf.update(np.array([speed, yaw_rate]), R=self.R_status, hx=_h_status)
+            healthy = self._healthy()
+        except (np.linalg.LinAlgError, ValueError):
+            healthy = False
+        if not healthy:  # see gnss(): the next fix starts the filter again
+            self.resets += 1
+            self.t, self._pending_status = None, (t, speed, yaw_rate)
+            return False
         self.statuses += 1
         return True
 

@@ -117,11 +117,12 @@ class Route:
         With a hint only stations within `window` of it are searched, so a route that passes
         near itself (a loop) is not mistaken for its other part.
         """
-        if s_hint is None:
-            lo, hi = 0, len(self.s)
-        else:
+        lo, hi = 0, len(self.s)
+        if s_hint is not None and math.isfinite(s_hint):
             lo = int(np.searchsorted(self.s, s_hint - window))
             hi = int(np.searchsorted(self.s, s_hint + window)) + 1
+            if hi - lo < 1 or lo >= len(self.s):  # a hint off the route (a stale or diverged estimate)
+                lo, hi = 0, len(self.s)
         d2 = (self.x[lo:hi] - x) ** 2 + (self.y[lo:hi] - y) ** 2
         i = lo + int(np.argmin(d2))
         # refine on the neighbouring segment
