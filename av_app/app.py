@@ -150,7 +150,9 @@ class AvApp:
             epoch = time.time()
             log.warning("%s: the master sent no %s; dating messages from the join time", self.name, EPOCH)
         policy = welcome.latency_policy if welcome.mode == "lockstep" else "realtime"
-        clock = StageClock(policy, welcome.latencies, cfg.latency, now=self.part.sim_time_now)
+        # realtime: the master's clock mapping comes with its first step; work done before it (a first lidar
+        # scan) counts at its input's own time (the fallback the clock is given, here minus infinity)
+        clock = StageClock(policy, welcome.latencies, cfg.latency, now=lambda: self._now(float("-inf")))
         self.core = AvCore(cfg, Obu(cfg.obu, origin, epoch, verifier), clock, world)
         self.summary.update(mode=welcome.mode, latency=clock.describe(), sync_every=welcome.sync_every,
                             origin=origin.to_dict(), station=cfg.app.station, vehicle=cfg.app.vehicle)
