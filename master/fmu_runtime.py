@@ -1,8 +1,12 @@
 """One running FMU instance over fmpy, FMI 2 or FMI 3 co-simulation.
 
 Hides the FMI-version differences behind get/set by typed value-reference
-groups and turns every failed call into a SimulationError naming the
-instance, the call and the FMU's own last log messages.
+groups (values come back as the same Python types whatever the FMI version:
+str for String, 0/1 for Boolean) and turns every failed call into a
+SimulationError naming the instance, the call and the FMU's own last log
+messages. An FMU that ends the simulation itself (FMI 2: fmi2Discard with
+fmi2Terminated; FMI 3: terminateSimulation) is not a failure: the instance
+reports it through `on_terminate` and the master stops after the step.
 """
 from __future__ import annotations
 
@@ -20,6 +24,25 @@ _FMI3_ACCESS = {t: (f"get{t}", f"set{t}") for t in (
     "UInt8", "UInt16", "UInt32", "UInt64", "Boolean", "String")}
 _FMI3_ACCESS["Enumeration"] = ("getInt64", "setInt64")
 _LEVELS = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
+_DISCARD, _ERROR = 2, 3  # FMI status codes (the same in FMI 2 and FMI 3)
+_FMI2_TERMINATED = 3  # fmi2StatusKind fmi2Terminated
+
+
+def _decode_strings(values: list) -> list[str]:
+    """FMI 2 getString gives bytes (fmpy does not decode them, its FMI 3 getString does):
+    decode, so that a connection can hand them to any setString and the records hold text."""
+    return [v.decode("utf-8", "replace") if isinstance(v, bytes) else v for v in values]
+
+
+def _booleans_as_int(values: list) -> list[int]:
+    """FMI 3 getBoolean gives True/False, FMI 2 (an int type in C) gives 1/0: one
+    representation, 1/0, so that timeseries.csv holds numbers whatever the FMU's version."""
+    return [int(v) for v in values]
+
+
+# getter key -> conversion of the values fmpy returns (keys absent: used as they come)
+_FMI2_CONVERT = {"string": _decode_strings}
+_FMI3_CONVERT = {"Boolean": _booleans_as_int}
 
 
 class FmuInstance:
@@ -35,6 +58,9 @@ class FmuInstance:
         self.time = 0.0
         self._slave = None
         self.failed: str | None = None  # "error" / "fatal" once a call failed
+        self.terminated_at: float | None = None  # when a doStep ended the simulation
+        # called with the reason when the FMU ends the simulation (the master's RunContext.request_stop)
+        self.on_terminate: Callable[[str], None] | None = None
         self._keepalive = None  # ctypes callbacks must outlive the instance
 
     # -- access ---------------------------------------------------------------
@@ -57,12 +83,21 @@ class FmuInstance:
                     self.fail(f"{call} values", exc)
             return set_values
 
-        def get_values():
+        convert = (_FMI3_CONVERT if self.fmi3 else _FMI2_CONVERT).get(key)
+        if convert is None:
+            def get_values():
+                try:
+                    return method(vrs)
+                except Exception as exc:
+                    self.fail(f"{call} values", exc)
+            return get_values
+
+        def get_converted():
             try:
-                return method(vrs)
+                return convert(method(vrs))
             except Exception as exc:
                 self.fail(f"{call} values", exc)
-        return get_values
+        return get_converted
 
     def set_by_name(self, values: dict[str, Any]) -> None:
         groups: dict[str, tuple[list[int], list[Any]]] = {}
@@ -137,16 +172,47 @@ class FmuInstance:
             self.fail("exitInitializationMode", exc)
 
     def do_step(self, t: float, h: float) -> None:
+        """One communication step from t to t + h.
+
+        An FMU may end the simulation with this step; that is a normal end, not
+        an error (FMI 2 signals it as fmi2Discard plus fmi2Terminated, FMI 3 as
+        terminateSimulation), so it goes to `terminated` and the step counts.
+        """
         self.time = t
         try:
             if self.fmi3:
-                event, terminate, _, _ = self._slave.doStep(t, h)
+                _, terminate, _, _ = self._slave.doStep(t, h)
                 if terminate:
-                    raise RuntimeError("the FMU asked to terminate the simulation")
+                    self.terminated(t + h)
             else:
                 self._slave.doStep(t, h)
+        except SimulationError:
+            raise
         except Exception as exc:
-            self.fail("doStep", exc)
+            if not self.fmi3 and getattr(exc, "status", None) == _DISCARD and self._fmi2_terminated():
+                self.terminated(t + h)
+            else:
+                self.fail("doStep", exc)
+
+    def _fmi2_terminated(self) -> bool:
+        """After fmi2Discard from doStep: does the FMU want to end the simulation?
+        (fmi2GetBooleanStatus(fmi2Terminated); an FMU that cannot say has not.)"""
+        try:
+            return bool(self._slave.getBooleanStatus(_FMI2_TERMINATED))
+        except Exception:  # noqa: BLE001 -- the discard itself is reported by the caller
+            return False
+
+    def terminated(self, t_end: float) -> None:
+        """The FMU ended the simulation with the step to t_end: ask the master to stop after this step.
+
+        Without a master listening (on_terminate unset) nothing would stop the
+        loop, so that case stays an error rather than going unnoticed.
+        """
+        self.terminated_at = t_end
+        reason = f"terminated by instance {self.name!r} at t = {t_end:.6g} s"
+        if self.on_terminate is None:
+            raise SimulationError(self.name, t_end, "doStep", f"{reason}, but no master listens for it")
+        self.on_terminate(reason)
 
     def close(self) -> None:
         """Terminate and free, ignoring errors: used on every exit path.
@@ -167,7 +233,8 @@ class FmuInstance:
 
     def fail(self, call: str, exc: BaseException):
         status = getattr(exc, "status", None)  # fmpy's FMICallException carries the FMI status
-        self.failed = "error" if status == 3 else "fatal"
+        # discard and error leave the instance usable enough to free; anything else is treated as fatal
+        self.failed = "error" if status in (_DISCARD, _ERROR) else "fatal"
         messages = [m for m in self.log if not m.startswith("[OK]")] or list(self.log)
         detail = str(exc)
         if messages:

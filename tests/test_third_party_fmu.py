@@ -8,6 +8,11 @@ headers) integrate dy/dt = k*u explicitly over each communication step h:
 
 and fail in doStep (error status plus an error log message "fail_at
 reached ...") at every communication point t >= fail_at when fail_at >= 0.
+With stop_at >= 0 the step that reaches stop_at completes and ends the
+simulation (FMI 2: fmi2Discard + fmi2Terminated; FMI 3: terminateSimulation).
+The Boolean output `odd` is n_steps odd. The FMI 2 one also has a String
+output `label` ("step <n_steps>"), a String input `label_in` that it keeps and
+returns, and `discard_at` (doStep returns fmi2Discard without terminating).
 
 Hand-computed references used below (h = 0.1 s, 10 steps):
   * one instance, k = 3, u = 2:      y(t) = 6 t, so y(1) = 6.0, n_steps = 10.
@@ -34,6 +39,7 @@ import pytest
 
 from master.cli import main as cli_main
 from master.cosim import CoSimulation
+from master.hooks import Hook
 from master.scenario import load_scenario
 
 FMU_SOURCES = Path(__file__).resolve().parent / "third_party_fmu"
@@ -315,3 +321,89 @@ def test_fmi2_output_drives_fmi3_input(fmu2, fmu3, tmp_path):
     assert result.status == "completed", result.error
     assert [meta["instances"][i]["fmi_version"] for i in ("a", "b")] == ["2.0", "3.0"]
     assert series["b.y"] == pytest.approx(B_Y_GAUSS_SEIDEL, abs=1e-12)
+
+
+# ------------------------------------------------ conformance (issue 19)
+class Probe(Hook):
+    """An observer after the recorder: what hooks see after each step (values read from the FMUs)."""
+
+    name = "probe"
+
+    def __init__(self, instance: str, variables: list[str]):
+        self.instance, self.variables = instance, variables
+        self.seen: list[tuple[float, dict]] = []
+
+    def open(self, ctx):
+        self.fmu = ctx.members[self.instance].fmu
+
+    def after_step(self, k, t_next):
+        self.seen.append((t_next, self.fmu.get_by_name(self.variables)))
+
+
+def raw_column(run_dir: Path, column: str) -> list[str]:
+    with open(run_dir / "timeseries.csv", newline="") as f:
+        return [row[column] for row in csv.DictReader(f)]
+
+
+def test_fmu_that_ends_the_simulation_stops_the_run_cleanly(integrator, tmp_path, capsys):
+    # the step to t = 0.5 ends the simulation: recorded, then the run stops (exit 0)
+    path = write_scenario(tmp_path / "sc", "stop", single_scenario(integrator, stop_at=0.5), [integrator])
+    assert cli_main(["run", str(path), "--out", str(tmp_path / "run"), "--quiet"]) == 0
+
+    meta = json.loads((tmp_path / "run" / "metadata.json").read_text())
+    assert meta["status"] == "stopped" and meta["error"] is None
+    assert meta["stop_reason"] == "terminated by instance 'integ' at t = 0.5 s"
+    assert meta["steps_done"] == 5
+    series = read_series(tmp_path / "run")
+    assert series["time"] == pytest.approx(TIMES[:6], abs=1e-12)
+    assert series["time"][-1] == pytest.approx(0.5, abs=1e-12)
+    assert series["integ.y"][-1] == pytest.approx(3.0, rel=1e-12)  # y = 6 t at t = 0.5
+    assert series["integ.n_steps"][-1] == 5
+
+
+def test_every_hook_sees_the_step_that_ended_the_simulation(integrator, tmp_path):
+    path = write_scenario(tmp_path / "sc", "stop", single_scenario(integrator, stop_at=0.5), [integrator])
+    cosim = CoSimulation(load_scenario(path), tmp_path / "run", quiet=True)
+    probe = Probe("integ", ["y"])
+    cosim.extra_hooks.append(probe)
+    result = cosim.run()
+    assert result.status == "stopped", result.error
+    assert [t for t, _ in probe.seen] == pytest.approx(TIMES[1:6], abs=1e-12)
+    assert probe.seen[-1][1]["y"] == pytest.approx(3.0, rel=1e-12)
+
+
+def test_other_discards_stay_errors_naming_the_instance(fmu2, tmp_path):
+    path = write_scenario(tmp_path / "sc", "discard", single_scenario(fmu2, discard_at=0.5), [fmu2])
+    result, series, meta = run(path, tmp_path / "run")
+    assert result.status == "failed"
+    assert "instance 'integ' failed in doStep at t = 0.5 s" in result.error
+    assert "discard_at reached" in result.error  # the FMU's own log text
+    assert meta["failed_instance"] == "integ" and meta["failed_call"] == "doStep"
+    assert "stop_reason" not in meta
+    assert series["time"] == pytest.approx(TIMES[:6], abs=1e-12)
+
+
+@pytest.mark.parametrize("ordering, first", [("jacobi", 0), ("gauss-seidel", 1)])
+def test_fmi2_string_output_reaches_a_string_input(fmu2, tmp_path, ordering, first):
+    # fmpy's FMI 2 getString gives bytes; the master hands text on (and setString needs str)
+    text = coupled_scenario(fmu2, fmu2, ordering).replace(
+        'connections = ["a.y -> b.u"]', 'connections = ["a.y -> b.u", "a.label -> b.label_in"]')
+    path = write_scenario(tmp_path / "sc", ordering, text, [fmu2])
+    cosim = CoSimulation(load_scenario(path), tmp_path / "run", quiet=True)
+    probe = Probe("b", ["label_in"])
+    cosim.extra_hooks.append(probe)
+    result = cosim.run()
+    assert result.status == "completed", result.error
+    received = [seen["label_in"] for _, seen in probe.seen]
+    # jacobi: b's step from t_n gets a's label at t_n ("step n"); gauss-seidel: after a's step ("step n+1")
+    assert received == [f"step {n + first}" for n in range(10)]
+    assert all(type(v) is str for v in received)
+    assert "a.label" not in read_series(tmp_path / "run")  # Strings are not recorded
+
+
+def test_booleans_are_recorded_as_1_0_for_fmi2_and_fmi3(integrator, tmp_path):
+    path = write_scenario(tmp_path / "sc", "bool", single_scenario(integrator), [integrator])
+    result = CoSimulation(load_scenario(path), tmp_path / "run", quiet=True).run()
+    assert result.status == "completed", result.error
+    # odd = n_steps is odd: the same text in the CSV whatever the FMI version
+    assert raw_column(tmp_path / "run", "integ.odd") == ["0", "1"] * 5 + ["0"]

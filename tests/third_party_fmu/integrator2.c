@@ -7,6 +7,14 @@
  *   n_steps counts the successful fmi2DoStep calls.
  *   fail_at >= 0: fmi2DoStep at a communication point t >= fail_at logs an
  *   error ("fail_at reached ...") and returns fmi2Error.
+ *   stop_at >= 0: the fmi2DoStep that reaches t >= stop_at completes, then
+ *   ends the simulation the FMI 2 way: it returns fmi2Discard and
+ *   fmi2GetBooleanStatus(fmi2Terminated) turns true.
+ *   discard_at >= 0: fmi2DoStep at a communication point t >= discard_at
+ *   returns fmi2Discard without terminating (a step the FMU rejects).
+ *   odd (Boolean output): n_steps is odd.
+ *   label (String output): "step <n_steps>"; label_in (String input) is kept
+ *   as a copy and can be read back with fmi2GetString.
  *
  * The FMU is strict on purpose, so that an importer that calls it wrongly
  * fails loudly: it checks the GUID, the FMU type, the calling sequence
@@ -33,6 +41,13 @@
 #define VR_Y        2
 #define VR_FAIL_AT  3
 #define VR_N_STEPS  4
+#define VR_STOP_AT  5
+#define VR_ODD      6
+#define VR_LABEL    7
+#define VR_LABEL_IN 8
+#define VR_DISCARD_AT 9
+
+#define LABEL_SIZE 64
 
 typedef enum { ST_INSTANTIATED, ST_INIT, ST_STEP, ST_TERMINATED, ST_ERROR } State;
 
@@ -42,8 +57,11 @@ typedef struct {
     fmi2Boolean logging;
     State state;
     fmi2Real time;
-    fmi2Real u, k, y, fail_at;
+    fmi2Real u, k, y, fail_at, stop_at, discard_at;
     fmi2Integer n_steps;
+    fmi2Boolean terminated;  /* a doStep ended the simulation (fmi2Terminated) */
+    char label[LABEL_SIZE];
+    char label_in[LABEL_SIZE];
 } Instance;
 
 static const char *state_name(State s) {
@@ -91,7 +109,12 @@ static void set_defaults(Instance *c) {
     c->k = 2.0;
     c->y = 0.0;
     c->fail_at = -1.0;
+    c->stop_at = -1.0;
+    c->discard_at = -1.0;
     c->n_steps = 0;
+    c->terminated = fmi2False;
+    snprintf(c->label, LABEL_SIZE, "step %d", (int)c->n_steps);
+    c->label_in[0] = '\0';
 }
 
 /* ---------------------------------------------------------------- common */
@@ -210,6 +233,8 @@ fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
         case VR_K: value[i] = c->k; break;
         case VR_Y: value[i] = c->y; break;
         case VR_FAIL_AT: value[i] = c->fail_at; break;
+        case VR_STOP_AT: value[i] = c->stop_at; break;
+        case VR_DISCARD_AT: value[i] = c->discard_at; break;
         default:
             log_message(c, fmi2Error, "logStatusError", "fmi2GetReal: unknown value reference %u", vr[i]);
             return fmi2Error;
@@ -234,16 +259,32 @@ fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr[], siz
 
 fmi2Status fmi2GetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) {
     Instance *c = (Instance *)comp;
-    (void)vr; (void)value;
+    size_t i;
     if (!allowed(c, "fmi2GetBoolean", ANY)) return fmi2Error;
-    return nvr == 0 ? fmi2OK : fail(c, "fmi2GetBoolean", "the model has no Boolean variables");
+    for (i = 0; i < nvr; i++) {
+        if (vr[i] != VR_ODD) {
+            log_message(c, fmi2Error, "logStatusError", "fmi2GetBoolean: unknown value reference %u", vr[i]);
+            return fmi2Error;
+        }
+        value[i] = (c->n_steps % 2) ? fmi2True : fmi2False;
+    }
+    return fmi2OK;
 }
 
 fmi2Status fmi2GetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) {
     Instance *c = (Instance *)comp;
-    (void)vr; (void)value;
+    size_t i;
     if (!allowed(c, "fmi2GetString", ANY)) return fmi2Error;
-    return nvr == 0 ? fmi2OK : fail(c, "fmi2GetString", "the model has no String variables");
+    for (i = 0; i < nvr; i++) {
+        switch (vr[i]) {
+        case VR_LABEL: value[i] = c->label; break;  /* valid until the next call into the FMU */
+        case VR_LABEL_IN: value[i] = c->label_in; break;
+        default:
+            log_message(c, fmi2Error, "logStatusError", "fmi2GetString: unknown value reference %u", vr[i]);
+            return fmi2Error;
+        }
+    }
+    return fmi2OK;
 }
 
 fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
@@ -260,6 +301,8 @@ fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
         case VR_K:
         case VR_Y:
         case VR_FAIL_AT:
+        case VR_STOP_AT:
+        case VR_DISCARD_AT:
             /* fixed parameters and the exact start value of y: only until initialization ends */
             if (!before_init_end) {
                 log_message(c, fmi2Error, "logStatusError",
@@ -269,7 +312,9 @@ fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
             }
             if (vr[i] == VR_K) c->k = value[i];
             else if (vr[i] == VR_Y) c->y = value[i];
-            else c->fail_at = value[i];
+            else if (vr[i] == VR_FAIL_AT) c->fail_at = value[i];
+            else if (vr[i] == VR_STOP_AT) c->stop_at = value[i];
+            else c->discard_at = value[i];
             break;
         default:
             log_message(c, fmi2Error, "logStatusError", "fmi2SetReal: unknown value reference %u", vr[i]);
@@ -305,9 +350,19 @@ fmi2Status fmi2SetBoolean(fmi2Component comp, const fmi2ValueReference vr[], siz
 fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
                          const fmi2String value[]) {
     Instance *c = (Instance *)comp;
-    (void)vr; (void)value;
+    size_t i;
     if (!allowed(c, "fmi2SetString", ANY_BUT_ERROR)) return fmi2Error;
-    return nvr == 0 ? fmi2OK : fail(c, "fmi2SetString", "the model has no String variables");
+    for (i = 0; i < nvr; i++) {
+        if (vr[i] != VR_LABEL_IN) {
+            log_message(c, fmi2Error, "logStatusError", "fmi2SetString: value reference %u is not an input",
+                        vr[i]);
+            return fmi2Error;
+        }
+        if (value[i] == NULL) return fail(c, "fmi2SetString", "NULL string for label_in");
+        /* the importer's string is only valid during this call: copy it */
+        snprintf(c->label_in, LABEL_SIZE, "%s", value[i]);
+    }
+    return fmi2OK;
 }
 
 /* ------------------------------------ FMU state, derivatives: not supported */
@@ -436,14 +491,27 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint, fm
                     t, c->time);
         return fmi2Error;
     }
+    if (c->terminated)
+        return fail(c, "fmi2DoStep", "the FMU has ended the simulation (fmi2Terminated)");
     if (c->fail_at >= 0.0 && t >= c->fail_at) {
         log_message(c, fmi2Error, "logStatusError", "fail_at reached: t = %g >= fail_at = %g", t, c->fail_at);
         c->state = ST_ERROR;
         return fmi2Error;
     }
+    if (c->discard_at >= 0.0 && t >= c->discard_at) {
+        log_message(c, fmi2Discard, "logStatusDiscard", "discard_at reached: t = %g >= discard_at = %g",
+                    t, c->discard_at);
+        return fmi2Discard;
+    }
     c->y += c->k * c->u * h;
     c->n_steps += 1;
     c->time = t + h;
+    snprintf(c->label, LABEL_SIZE, "step %d", (int)c->n_steps);
+    if (c->stop_at >= 0.0 && c->time >= c->stop_at - 1e-9 * (1.0 + fabs(c->stop_at))) {
+        log_message(c, fmi2OK, "logEvents", "stop_at reached: t = %g, ending the simulation", c->time);
+        c->terminated = fmi2True;
+        return fmi2Discard;
+    }
     return fmi2OK;
 }
 
@@ -477,7 +545,7 @@ fmi2Status fmi2GetBooleanStatus(fmi2Component comp, const fmi2StatusKind s, fmi2
     Instance *c = (Instance *)comp;
     if (!allowed(c, "fmi2GetBooleanStatus", ANY)) return fmi2Error;
     if (s != fmi2Terminated) return fmi2Discard;
-    *value = fmi2False;  /* the model never asks to stop the simulation */
+    *value = c->terminated;  /* set by the doStep that reached stop_at */
     return fmi2OK;
 }
 

@@ -7,6 +7,9 @@
  *   n_steps (Int32) counts the successful fmi3DoStep calls.
  *   fail_at >= 0: fmi3DoStep at a communication point t >= fail_at logs an
  *   error ("fail_at reached ...") and returns fmi3Error.
+ *   stop_at >= 0: the fmi3DoStep that reaches t >= stop_at completes and
+ *   sets terminateSimulation (the FMI 3 way to end the simulation).
+ *   odd (Boolean output): n_steps is odd.
  *
  * Co-simulation only: fmi3InstantiateModelExchange and
  * fmi3InstantiateScheduledExecution return NULL; event mode, clocks, FMU
@@ -36,6 +39,8 @@
 #define VR_Y        3
 #define VR_FAIL_AT  4
 #define VR_N_STEPS  5
+#define VR_STOP_AT  6
+#define VR_ODD      7
 
 typedef enum { ST_INSTANTIATED, ST_INIT, ST_STEP, ST_TERMINATED, ST_ERROR } State;
 
@@ -46,7 +51,7 @@ typedef struct {
     fmi3Boolean logging;
     State state;
     fmi3Float64 time;
-    fmi3Float64 u, k, y, fail_at;
+    fmi3Float64 u, k, y, fail_at, stop_at;
     fmi3Int32 n_steps;
 } Instance;
 
@@ -93,6 +98,7 @@ static void set_defaults(Instance *c) {
     c->k = 2.0;
     c->y = 0.0;
     c->fail_at = -1.0;
+    c->stop_at = -1.0;
     c->n_steps = 0;
 }
 
@@ -245,6 +251,7 @@ fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
         case VR_K: values[i] = c->k; break;
         case VR_Y: values[i] = c->y; break;
         case VR_FAIL_AT: values[i] = c->fail_at; break;
+        case VR_STOP_AT: values[i] = c->stop_at; break;
         default:
             log_message(c, fmi3Error, "logStatusError", "fmi3GetFloat64: unknown value reference %u",
                         (unsigned)valueReferences[i]);
@@ -271,6 +278,7 @@ fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
         case VR_K:
         case VR_Y:
         case VR_FAIL_AT:
+        case VR_STOP_AT:
             /* fixed parameters and the exact start value of y: only until initialization ends */
             if (!before_init_end) {
                 log_message(c, fmi3Error, "logStatusError",
@@ -280,7 +288,8 @@ fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
             }
             if (vr == VR_K) c->k = values[i];
             else if (vr == VR_Y) c->y = values[i];
-            else c->fail_at = values[i];
+            else if (vr == VR_FAIL_AT) c->fail_at = values[i];
+            else c->stop_at = values[i];
             break;
         case VR_TIME:
             return fail(c, "fmi3SetFloat64", "the independent variable time cannot be set");
@@ -345,7 +354,6 @@ NO_VARIABLES_OF_TYPE(fmi3GetUInt16, fmi3UInt16)
 NO_VARIABLES_OF_TYPE(fmi3GetUInt32, fmi3UInt32)
 NO_VARIABLES_OF_TYPE(fmi3GetInt64, fmi3Int64)
 NO_VARIABLES_OF_TYPE(fmi3GetUInt64, fmi3UInt64)
-NO_VARIABLES_OF_TYPE(fmi3GetBoolean, fmi3Boolean)
 NO_VARIABLES_OF_TYPE(fmi3GetString, fmi3String)
 NO_VARIABLES_OF_TYPE(fmi3SetFloat32, const fmi3Float32)
 NO_VARIABLES_OF_TYPE(fmi3SetInt8, const fmi3Int8)
@@ -357,6 +365,23 @@ NO_VARIABLES_OF_TYPE(fmi3SetInt64, const fmi3Int64)
 NO_VARIABLES_OF_TYPE(fmi3SetUInt64, const fmi3UInt64)
 NO_VARIABLES_OF_TYPE(fmi3SetBoolean, const fmi3Boolean)
 NO_VARIABLES_OF_TYPE(fmi3SetString, const fmi3String)
+
+fmi3Status fmi3GetBoolean(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                          size_t nValueReferences, fmi3Boolean values[], size_t nValues) {
+    Instance *c = (Instance *)instance;
+    size_t i;
+    if (!allowed(c, "fmi3GetBoolean", ANY)) return fmi3Error;
+    if (!scalars(c, "fmi3GetBoolean", nValueReferences, nValues)) return fmi3Error;
+    for (i = 0; i < nValueReferences; i++) {
+        if (valueReferences[i] != VR_ODD) {
+            log_message(c, fmi3Error, "logStatusError", "fmi3GetBoolean: unknown value reference %u",
+                        (unsigned)valueReferences[i]);
+            return fmi3Error;
+        }
+        values[i] = (c->n_steps % 2) ? fmi3True : fmi3False;
+    }
+    return fmi3OK;
+}
 
 fmi3Status fmi3GetBinary(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                          size_t nValueReferences, size_t valueSizes[], fmi3Binary values[], size_t nValues) {
@@ -633,6 +658,10 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
     c->n_steps += 1;
     c->time = t + h;
     *lastSuccessfulTime = c->time;
+    if (c->stop_at >= 0.0 && c->time >= c->stop_at - 1e-9 * (1.0 + fabs(c->stop_at))) {
+        log_message(c, fmi3OK, "logEvents", "stop_at reached: t = %g, ending the simulation", c->time);
+        *terminateSimulation = fmi3True;
+    }
     return fmi3OK;
 }
 
