@@ -15,7 +15,7 @@ from a forged or corrupted signature. Envelopes without it are still verified.
 from __future__ import annotations
 
 import enum
-from collections import OrderedDict
+import heapq
 from dataclasses import dataclass
 from typing import Any, Iterable
 
@@ -100,12 +100,20 @@ class Verifier:
     `max_age_s`/`max_future_s` bound the generation time against the
     receiver's clock (simulation time in a run). Station certificates arrive
     in envelopes, are checked against the roots once, and are remembered by
-    digest, so later digest-signed messages verify without the chain.
+    digest, so later digest-signed messages verify without the chain; the
+    validity periods of the station certificate and of its CA are checked
+    against the receiver's clock on every message.
+
+    Replay memory is bounded by time, not by count: the signing digest of
+    every accepted message is kept until its generation time falls out of the
+    window, so it holds at most the messages accepted from trusted signers in
+    the last `max_age_s + max_future_s` (e.g. 10 Hz senders: about 5.5 per
+    sender with the defaults). Only messages that passed the signature check
+    are remembered, so a sender without a trusted key cannot grow it.
     """
 
     def __init__(self, trust_anchors: Iterable[Certificate], *, max_age_s: float = 0.5,
-                 max_future_s: float = 0.05, allow_unsecured: bool = False,
-                 replay_memory: int = 4096):
+                 max_future_s: float = 0.05, allow_unsecured: bool = False):
         self.anchors = {cert.digest: cert for cert in trust_anchors}
         for cert in self.anchors.values():
             if not cert.signed_by(None):
@@ -114,10 +122,21 @@ class Verifier:
         self.max_future_us = round(max_future_s * 1e6)
         self.allow_unsecured = allow_unsecured
         self._stations: dict[bytes, Certificate] = {}
-        self._seen: OrderedDict[bytes, None] = OrderedDict()
-        self._replay_memory = replay_memory
+        self._seen: set[bytes] = set()  # signing digests of accepted messages
+        self._seen_frames: set[bytes] = set()  # SHA-256 of their received bytes
+        self._expiry: list[tuple[int, bytes, bytes]] = []  # heap: (generation time, digest, frame hash)
+        self._forgotten_before_us = -(1 << 63)  # digests of messages generated earlier were dropped
+
+    @property
+    def remembered(self) -> int:
+        """How many accepted messages the replay check holds now (the memory bound is observable)."""
+        return len(self._seen)
 
     def verify(self, data: bytes, now_us: int) -> Verified:
+        self._forget_older_than(now_us - self.max_age_us)
+        frame = sha256(data)
+        if frame in self._seen_frames:  # a byte-for-byte replay costs one hash, not a decode
+            raise VerificationError(Rejection.REPLAYED, "the same signed message was already accepted")
         try:
             envelope = oer.decode("Ieee1609Dot2Data", data)
         except SecurityFormatError as exc:
@@ -132,9 +151,9 @@ class Verifier:
             return Verified(content, None, None, None, secured=False)
         if kind != "signedData":
             raise VerificationError(Rejection.MALFORMED, f"{kind} content is not supported")
-        return self._verify_signed(content, now_us)
+        return self._verify_signed(content, now_us, frame)
 
-    def _verify_signed(self, signed: dict[str, Any], now_us: int) -> Verified:
+    def _verify_signed(self, signed: dict[str, Any], now_us: int, frame: bytes) -> Verified:
         if signed["hashId"] != "sha256":
             raise VerificationError(Rejection.MALFORMED, f"hash algorithm {signed['hashId']} is not supported")
         tbs = signed["tbsData"]
@@ -148,21 +167,38 @@ class Verifier:
         generated = header.get("generationTime")
         if generated is None:
             raise VerificationError(Rejection.MALFORMED, "no generation time in the header")
+        self._check_time_window(generated, now_us)
+        ext_hash = tbs["payload"].get("extDataHash")
+        if ext_hash is not None and ext_hash[1] != sha256(payload):
+            raise VerificationError(Rejection.ALTERED_PAYLOAD, "payload does not match its signed digest")
+        digest = signing_digest(oer.encode("ToBeSignedData", tbs), certificate.encoded)
+        # Before the ECDSA check: a replay re-encoded or with another signature is
+        # refused without a signature verification. Only accepted messages are
+        # remembered, so this refuses nothing that could have been accepted.
+        if digest in self._seen:
+            raise VerificationError(Rejection.REPLAYED, "the same signed message was already accepted")
+        if not verify_digest(certificate.public_key(), digest, signed["signature"]):
+            raise VerificationError(Rejection.BAD_SIGNATURE, f"signature does not verify with {certificate.name!r}'s key")
+        self._remember(digest, frame, generated)
+        return Verified(payload, psid, generated, certificate.name, secured=True)
+
+    def _check_time_window(self, generated: int, now_us: int) -> None:
+        """Refuse generation times outside the window, and any the replay memory may have forgotten.
+
+        With a clock that only moves forward the second test never fires: the
+        memory forgets only what the window already refuses. If the receiver's
+        clock steps back, a message older than what was forgotten could be a
+        replay that can no longer be detected, so it is refused too.
+        """
         age = now_us - generated
         if age > self.max_age_us or -age > self.max_future_us:
             raise VerificationError(Rejection.OUTSIDE_TIME_WINDOW,
                                     f"generated {age / 1e3:+.1f} ms before now; window "
                                     f"-{self.max_future_us / 1e3:g}..{self.max_age_us / 1e3:g} ms")
-        ext_hash = tbs["payload"].get("extDataHash")
-        if ext_hash is not None and ext_hash[1] != sha256(payload):
-            raise VerificationError(Rejection.ALTERED_PAYLOAD, "payload does not match its signed digest")
-        digest = signing_digest(oer.encode("ToBeSignedData", tbs), certificate.encoded)
-        if not verify_digest(certificate.public_key(), digest, signed["signature"]):
-            raise VerificationError(Rejection.BAD_SIGNATURE, f"signature does not verify with {certificate.name!r}'s key")
-        if digest in self._seen:
-            raise VerificationError(Rejection.REPLAYED, "the same signed message was already accepted")
-        self._remember(digest)
-        return Verified(payload, psid, generated, certificate.name, secured=True)
+        if generated < self._forgotten_before_us:
+            raise VerificationError(Rejection.OUTSIDE_TIME_WINDOW,
+                                    f"generated {age / 1e3:+.1f} ms before now, earlier than the replay "
+                                    f"memory reaches after the receiver's clock stepped back")
 
     def _signer_certificate(self, signer: tuple[str, Any], now_us: int) -> Certificate:
         kind, value = signer
@@ -185,12 +221,21 @@ class Verifier:
                 self._stations[certificate.digest] = certificate
         else:
             raise VerificationError(Rejection.UNTRUSTED_SIGNER, "self-signed data is not accepted")
-        start, end = certificate.validity()
-        now_s = now_us / 1e6
-        if not start <= now_s <= end:
-            raise VerificationError(Rejection.UNTRUSTED_SIGNER,
-                                    f"certificate {certificate.name!r} is not valid at this time")
+        self._check_validity(certificate, now_us / 1e6)
         return certificate
+
+    def _check_validity(self, certificate: Certificate, now_s: float) -> None:
+        """Both links of the chain must be valid now: an expired CA vouches for nobody.
+
+        Checked per message, not once when the certificate is learnt, because a
+        remembered station certificate (or its CA) expires while in use.
+        """
+        issuer = self.anchors[certificate.issuer_digest]  # _check_chain put only anchored ones in _stations
+        for link, role in ((certificate, "certificate"), (issuer, "CA certificate")):
+            start, end = link.validity()
+            if not start <= now_s <= end:
+                raise VerificationError(Rejection.UNTRUSTED_SIGNER,
+                                        f"{role} {link.name!r} is not valid at this time")
 
     def _check_chain(self, certificate: Certificate) -> None:
         issuer = self.anchors.get(certificate.issuer_digest or b"")
@@ -205,10 +250,24 @@ class Verifier:
             raise VerificationError(Rejection.UNTRUSTED_SIGNER,
                                     f"certificate {certificate.name!r} does not verify with CA {issuer.name!r}")
 
-    def _remember(self, fingerprint: bytes) -> None:
-        self._seen[fingerprint] = None
-        while len(self._seen) > self._replay_memory:
-            self._seen.popitem(last=False)
+    def _remember(self, digest: bytes, frame: bytes, generated_us: int) -> None:
+        self._seen.add(digest)
+        self._seen_frames.add(frame)
+        heapq.heappush(self._expiry, (generated_us, digest, frame))
+
+    def _forget_older_than(self, horizon_us: int) -> None:
+        """Drop digests of messages generated before `horizon_us`: the window refuses them anyway.
+
+        The horizon never moves back, so `_check_time_window` can refuse what
+        was forgotten even when the receiver's clock does.
+        """
+        if horizon_us <= self._forgotten_before_us:
+            return
+        self._forgotten_before_us = horizon_us
+        while self._expiry and self._expiry[0][0] < horizon_us:
+            _, digest, frame = heapq.heappop(self._expiry)
+            self._seen.discard(digest)
+            self._seen_frames.discard(frame)
 
 
 def _inner_payload(payload: dict[str, Any]) -> bytes:
