@@ -91,7 +91,7 @@ def run_case(tmp_path_factory, keys, name: str, *, feeder: str | None, ev_x0: fl
     sc["fmus"]["cav"]["fmu"] = sc["fmus"]["ev"]["fmu"] = fmu
     sc["time"]["stop"] = stop
     if realtime:
-        sc["time"].update(mode="realtime", rtf=1.0, overrun="catch-up")
+        sc["time"].update(mode="realtime", rtf=0.5, overrun="catch-up")
     sc["fmus"]["ev"]["parameters"]["x0"] = ev_x0
     if ev_parked:  # out of the way, standing: the ghost runs have no real emergency vehicle
         sc["fmus"]["ev"]["parameters"]["v0"] = 0.0
@@ -293,7 +293,11 @@ def test_fed_nothing_the_lidar_sees_the_ev_only_at_the_corner_and_the_cav_must_b
 # -- realtime -------------------------------------------------------------------------------------------------------
 def test_realtime_run_the_app_answers_statuses_as_they_come(tmp_path_factory, keys, fmu_dir):
     """Realtime (HIL) mode: no ticks to wait for; each AV_Status is answered when it arrives, stamped with
-    the master's simulation clock, and the gateway applies the latest command (sync = free)."""
+    the master's simulation clock, and the gateway applies the latest command (sync = free).
+
+    At half real time: at RTF 1 this shared 2-core machine (master with camera, lidar and the app) cannot
+    keep the 10 ms loop under load, commands reach the vehicle late and its steering weaves up to 0.8 m
+    (seen in a full make test and reproduced beside two busy processes); at RTF 0.5 it keeps its lane."""
     run = run_case(tmp_path_factory, keys, "realtime", feeder=None, ev_x0=-119.0, ev_parked=True, stop=3.0,
                    realtime=True)
     av = run.av
