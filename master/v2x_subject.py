@@ -72,22 +72,15 @@ class Body:
 def unwrap(data: bytes) -> bytes | None:
     """The payload inside a version-3 Ieee1609Dot2Data (unsecuredData, or signedData with an inline
     payload), without any verification; None for anything else."""
+    from bridges.security.envelope import unverified_payload
     from bridges.security.oer import PROTOCOL_VERSION, SecurityFormatError, decode
 
     if not isinstance(data, (bytes, bytearray, memoryview)) or bytes(data[:1]) != bytes([PROTOCOL_VERSION]):
         return None
     try:
-        envelope = decode("Ieee1609Dot2Data", data)
-        kind, content = envelope["content"]
-        if kind == "unsecuredData":
-            return content
-        if kind == "signedData":
-            inner = content["tbsData"]["payload"].get("data")
-            if inner is not None and inner["content"][0] == "unsecuredData":
-                return inner["content"][1]
+        return unverified_payload(decode("Ieee1609Dot2Data", data))
     except (SecurityFormatError, KeyError, TypeError, ValueError, IndexError):
-        pass
-    return None
+        return None
 
 
 def bsm_lat_lon(data: bytes, codec) -> tuple[float, float] | str:

@@ -65,22 +65,26 @@ def decode_document(data: bytes, codec: J2735Codec) -> dict[str, Any]:
 
 
 def _envelope_payload(envelope: dict[str, Any]) -> tuple[bytes, dict[str, Any]]:
+    from bridges.security.envelope import unverified_payload
+    from bridges.security.oer import SecurityFormatError
+
     kind, content = envelope["content"]
+    if kind not in ("unsecuredData", "signedData"):
+        raise J2735Error(f"1609.2 {kind} content is not supported")
+    try:
+        payload = unverified_payload(envelope)
+    except SecurityFormatError as exc:
+        raise J2735Error(f"1609.2 {exc.reason}") from None
     if kind == "unsecuredData":
-        return content, {"content": "unsecuredData"}
-    if kind == "signedData":
-        inner = content["tbsData"]["payload"].get("data")
-        if inner is None or inner["content"][0] != "unsecuredData":
-            raise J2735Error("1609.2 signedData carries no inline payload")
-        header = content["tbsData"]["headerInfo"]
-        signer_kind, signer = content["signer"]
-        return inner["content"][1], {
-            "content": "signedData", "psid": header["psid"],
-            "generationTime": header.get("generationTime"),
-            "signer": {"digest": signer.hex().upper()} if signer_kind == "digest" else signer_kind,
-            "signature": content["signature"][0], "verified": False,
-        }
-    raise J2735Error(f"1609.2 {kind} content is not supported")
+        return payload, {"content": "unsecuredData"}
+    header = content["tbsData"]["headerInfo"]
+    signer_kind, signer = content["signer"]
+    return payload, {
+        "content": "signedData", "psid": header["psid"],
+        "generationTime": header.get("generationTime"),
+        "signer": {"digest": signer.hex().upper()} if signer_kind == "digest" else signer_kind,
+        "signature": content["signature"][0], "verified": False,
+    }
 
 
 def _cmd_decode(args) -> int:

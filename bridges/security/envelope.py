@@ -279,6 +279,23 @@ def _inner_payload(payload: dict[str, Any]) -> bytes:
     return data["content"][1]
 
 
+def unverified_payload(envelope: dict[str, Any]) -> bytes:
+    """The payload of a decoded Ieee1609Dot2Data: unsecuredData, or signedData carrying it inline.
+
+    Nothing is verified: for tools that look at what a frame says (the CLI's decoder, the simulator's
+    air), never for a receiver acting on it. SecurityFormatError for anything else.
+    """
+    kind, content = envelope["content"]
+    if kind == "unsecuredData":
+        return content
+    if kind == "signedData":
+        inner = content["tbsData"]["payload"].get("data")
+        if inner is not None and inner["content"][0] == "unsecuredData":
+            return inner["content"][1]
+        raise SecurityFormatError("signedData carries no inline payload")
+    raise SecurityFormatError(f"{kind} carries no payload to read")
+
+
 def open_unsecured(data: bytes) -> bytes:
     """The payload of an unsecured Ieee1609Dot2Data (no policy check); SecurityFormatError otherwise."""
     envelope = oer.decode("Ieee1609Dot2Data", data)
