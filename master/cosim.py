@@ -27,7 +27,7 @@ from master.errors import DeadlineMissError, SimulationError
 from master.algorithm import algorithm, read_outputs
 from master.can_bridge import CanBridge
 from master.collision import CollisionHook
-from master.conditions import StopConditions
+from master.conditions import COLLISION, StopConditions
 from master.fmu_runtime import FmuInstance
 from master.hooks import Hook, Member, Outcome, RunContext, open_order, overrides
 from master.metrics import METRICS, run_metrics, write_metrics
@@ -39,7 +39,7 @@ from master.run_records import CameraArchive, TraceRecorder
 from master.scenario import Scenario
 from master.serial_bridge import SerialBridges
 from master.stats import percentiles
-from master.streams import SensorStreams
+from master.streams import StreamsHook
 
 
 class Interrupted(Exception):
@@ -118,7 +118,7 @@ class CoSimulation:
                                               scenario.name, quiet,
                                               world=scenario.world.describe() if scenario.world else None)
         # did the vehicles touch? (every scenario with a world of two or more vehicles)
-        self.collision = CollisionHook.for_scenario(scenario, "collision" in scenario.time.stop_on)
+        self.collision = CollisionHook.for_scenario(scenario, COLLISION in scenario.time.stop_on)
         self.stop_conditions = StopConditions.for_scenario(scenario)  # [time] stop_on over signals
         self.extra_hooks: list[Hook] = []  # observers added by tools and tests, after the scenario's own
 
@@ -141,7 +141,7 @@ class CoSimulation:
         hooks += [h for h in (self.participants, self.serial, self.can) if h]
         if self.world is not None:
             if self.participants:  # the world's sensors reach the apps over the bus
-                hooks.append(SensorStreams.hook(self.world, sc.participants.bridge.camera_encoding))
+                hooks.append(StreamsHook(self.world, sc.participants.bridge.camera_encoding))
             hooks.append(self.world)
         if self.radio is not None:
             hooks.append(self.radio)

@@ -37,11 +37,6 @@ class SensorStreams:
             return
         self.counts[kind] += 1
 
-    @staticmethod
-    def hook(world_participant, camera_encoding: str = "raw") -> "StreamsHook":
-        """The hook that puts `world_participant`'s sensor samples on the run's bus."""
-        return StreamsHook(world_participant, camera_encoding)
-
     def report(self) -> dict[str, Any]:
         out: dict[str, Any] = {"published": dict(self.counts)}
         if self.camera is not None:
