@@ -48,8 +48,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:  # run as a plain script from anywhere
-    sys.path.insert(0, str(ROOT))
+# the repository first, and not this folder: its bridges.py would shadow the bridges package
+# (with an editable install ROOT is already on the path, behind this folder)
+sys.path[:] = [str(ROOT)] + [p for p in sys.path if Path(p or ".").resolve() != ROOT / "benchmarks"]
 
 RESULTS = ROOT / "benchmarks" / "results"
 # the published PDR curves behind anchors C11/C12 (docs/anchors.md), carried with the tests

@@ -36,8 +36,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:  # run as a plain script from anywhere
-    sys.path.insert(0, str(ROOT))
+# the repository first, and not this folder: its bridges.py would shadow the bridges package
+# (with an editable install ROOT is already on the path, behind this folder)
+sys.path[:] = [str(ROOT)] + [p for p in sys.path if Path(p or ".").resolve() != ROOT / "benchmarks"]
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
