@@ -38,7 +38,9 @@ drives the vehicle when. This module is its hook in the loop: the bus, the
 receive thread, frame checks, the wall-clock wait, the FMU and the logs.
 
 Whatever the sync, what was applied when is in ``can-applied.csv`` (one row per change
-of the FMU's inputs: time, event, mode, values, counter, echo, basis time), bad
+of the FMU's inputs: time, event, mode, values, counter, echo, basis time, and
+`t_clock`, the time on the run clock the apps stamp with: = t in lockstep, the
+published sim/wall mapping's time in realtime), bad
 frames are tallied by reason in metadata and the first of each reason is logged
 with its bytes in ``can-events.jsonl``; nothing from the bus stops a run.
 """
@@ -296,10 +298,11 @@ class CanBridge(Hook):
             raise SimulationError(cfg.vehicle, t, "can bridge open",
                                   f"cannot open {cfg.bus.describe()}: {type(exc).__name__}: {exc}") from exc
         self._events = EventLog(run_dir, EVENTS_JSONL, "w")
+        self._stamp_time = ctx.stamp_time  # t_clock: realtime, the run clock the apps stamp CAN_COMMAND on
         self._csv_file = open(run_dir / APPLIED_CSV, "w", newline="", buffering=1)
         self._csv = csv.writer(self._csv_file)
         self._csv.writerow(["t", "event", "mode", "accel_cmd", "steer_cmd", "reverse", "counter", "status_echo",
-                            "basis_t", "rx_time"])
+                            "basis_t", "rx_time", "t_clock"])
         self._log({"t": t, "event": "open", "bus": cfg.bus.describe(), "sync": self.sync})
         if self.sync != "drain":
             self._thread = threading.Thread(target=self._receive, name="can-bridge", daemon=True)
@@ -419,7 +422,7 @@ class CanBridge(Hook):
         self._csv.writerow([repr(a.t), a.event, a.mode.name, repr(float(a.accel)), repr(float(a.steer)),
                             int(a.reverse), cmd.counter if cmd else "", cmd.status_echo if cmd else "",
                             repr(a.basis_t) if a.basis_t is not None else "",
-                            repr(rx.rx_time) if rx is not None else ""])
+                            repr(rx.rx_time) if rx is not None else "", repr(self._stamp_time(a.t))])
 
     def after_step(self, k: int, t_next: float) -> None:
         """Publish AV_Status at the status rate from the vehicle's outputs at the end of its step."""

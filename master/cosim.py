@@ -270,6 +270,7 @@ class CoSimulation:
             for m in members.values():
                 m.fmu.exit_initialization()
             ctx = RunContext(sc, self.run_dir, members, self.quiet)
+            ctx.pacer = pacer  # realtime: the wall-clock schedule the run clock's mapping is anchored on
             for m in members.values():  # an FMU that ends the simulation stops the run after its step
                 m.fmu.on_terminate = ctx.request_stop
             if self.participants:  # the master owns the run's bus; hooks share it

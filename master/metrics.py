@@ -10,7 +10,8 @@ folder can be re-measured after the fact (`v2i report` does):
   `{p50, p99, max, n}` in milliseconds of simulated time, from the apps' trace
   records (`trace.jsonl`, stamps named in bridges.v2x) joined with the CAN
   gateway's `can-applied.csv` (a record's AV_Command counter -> the time the
-  gateway applied it = CAN_APPLIED);
+  gateway applied it, or a newer command that superseded it = CAN_APPLIED;
+  realtime runs use the row's `t_clock`, the apps' clock);
 * `pdr`: per directed link "tx->rx", frames delivered / frames decided
   (delivered + dropped; frames still in flight at the end are not decided),
   with the counts; `ipg_ms`: per link, the gaps between consecutive deliveries
@@ -19,7 +20,9 @@ folder can be re-measured after the fact (`v2i report` does):
   sample time after the first delivery, now - the camera-frame time of the
   freshest information about the subject that had arrived; `{p50, p99, max, n}`
   (the air ties each frame to the vehicle it describes, see master.radio_bridge);
-* `time_mode`, `latency_policy`: under which rules the numbers were taken.
+* `time_mode`, `rtf`, `latency_policy`: under which rules the numbers were taken
+  (`rtf`: a realtime run's target real-time factor, None in lockstep; its
+  stamps are on the run clock, so wall-clock milliseconds = latency / rtf).
 """
 from __future__ import annotations
 
@@ -46,34 +49,65 @@ def summary(samples: Iterable[float]) -> dict[str, float | int | None]:
 
 
 # -- latency ----------------------------------------------------------------------------------------------
-def applied_times(rows: Iterable[dict[str, str]]) -> dict[int, list[float]]:
-    """can-applied.csv rows -> AV_Command counter -> sorted times the gateway applied a command with it."""
-    out: dict[int, list[float]] = defaultdict(list)
+COUNTER_MODULO = 256  # AV_Command's rolling counter (bridges/can/cav.dbc)
+
+
+class Applications:
+    """When the gateway applied which AV_Command, on the clock the apps stamp with, in time order.
+
+    A record's command counts as applied at the first application, at or after it was sent, of that
+    command *or a newer one* (its counter or one up to half the counter space ahead, modulo 256): the
+    gateway applies the newest command due at a step and supersedes older ones (it does whenever two
+    arrive within one step, as in realtime runs), and the newer command carries the plan forward.
+    Matching only the record's own counter left a superseded command without an E2E figure.
+    """
+
+    def __init__(self, entries: Iterable[tuple[float, int]] = ()):
+        self.entries = sorted(entries)
+        self.times = [t for t, _ in self.entries]
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Applications) and self.entries == other.entries
+
+    def __repr__(self) -> str:
+        return f"Applications({self.entries!r})"
+
+    def first(self, counter: int, sent: float) -> float | None:
+        """The time the command `counter` sent at `sent` took effect; None if not within APPLY_WINDOW_S."""
+        i = bisect.bisect_left(self.times, sent - 1e-9)
+        for t, applied in self.entries[i:]:
+            if t - sent > APPLY_WINDOW_S:
+                return None
+            if (applied - counter) % COUNTER_MODULO < COUNTER_MODULO // 2:
+                return t
+        return None
+
+
+def applied_times(rows: Iterable[dict[str, str]]) -> Applications:
+    """can-applied.csv rows -> the gateway's applications of AV_Commands: (time, counter), in time order."""
+    entries = []
     for row in rows:
         if row.get("event") != "command" or not row.get("counter"):
             continue
-        out[int(row["counter"])].append(float(row["t"]))
-    for times in out.values():
-        times.sort()
-    return dict(out)
+        # t_clock: when it was applied on the run clock the apps stamp with (realtime; = t in lockstep)
+        entries.append((float(row.get("t_clock") or row["t"]), int(row["counter"])))
+    return Applications(entries)
 
 
-def with_can_applied(record: dict[str, Any], applied: dict[int, list[float]]) -> dict[str, int]:
-    """A trace record's stamps, with CAN_APPLIED added when its command was applied (counters wrap at 256:
-    the first application at or after the command, within APPLY_WINDOW_S)."""
+def with_can_applied(record: dict[str, Any], applied: Applications) -> dict[str, int]:
+    """A trace record's stamps, with CAN_APPLIED added when its command (or a newer one) was applied
+    (Applications.first)."""
     stamps = {k: int(v) for k, v in record.get("stamps", {}).items()}
     counter = record.get("can_counter")
     if counter is None or CAN_COMMAND not in stamps:
         return stamps
-    sent = stamp_s(stamps[CAN_COMMAND])
-    times = applied.get(int(counter), [])
-    i = bisect.bisect_left(times, sent - 1e-9)
-    if i < len(times) and times[i] - sent <= APPLY_WINDOW_S:
-        stamps[CAN_APPLIED] = stamp_ns(times[i])
+    t = applied.first(int(counter), stamp_s(stamps[CAN_COMMAND]))
+    if t is not None:
+        stamps[CAN_APPLIED] = stamp_ns(t)
     return stamps
 
 
-def latency_metrics(records: Iterable[dict[str, Any]], applied: dict[int, list[float]]) -> dict[str, Any]:
+def latency_metrics(records: Iterable[dict[str, Any]], applied: Applications) -> dict[str, Any]:
     """latency_ms.{stage1, stage2, air, stage3, e2e} over every record that has both ends of a stage."""
     per_stage: dict[str, list[float]] = {name: [] for name in STAGES}
     for record in records:
@@ -192,6 +226,7 @@ def run_metrics(run_dir: Path, meta: dict[str, Any]) -> dict[str, Any] | None:
     out["pdr"], out["ipg_ms"] = link_metrics(events)
     out["aoi_ms"] = _aoi(events, meta.get("sim_time_reached_s") or 0.0)
     out["time_mode"] = meta.get("mode")
+    out["rtf"] = (meta.get("realtime") or {}).get("target_rtf") if meta.get("mode") == "realtime" else None
     out["latency_policy"] = _policy(run_dir)
     return out
 

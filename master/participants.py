@@ -35,7 +35,10 @@ V2I_NAME, V2I_ROLE, and the URL of each serial port of the run as
 V2I_SERIAL_<NAME> (e.g. V2I_SERIAL_TLC=socket://127.0.0.1:40123); its output goes to `participant-<name>.log` in the run
 folder. In lockstep the master ticks at each sync point before stepping and
 waits for the acks; in realtime it publishes ticks and the sim/wall mapping and
-never waits.
+never waits. The mapping (the run clock) is the pacer's schedule: it moves only
+when the schedule does (the `slip` and `skip` overrun policies), so the apps'
+stamps and the master's (RunContext.stamp_time) are on one clock; a loop that
+cannot keep up falls behind the run clock and the run says so (deadline misses).
 """
 from __future__ import annotations
 
@@ -69,7 +72,7 @@ PARTICIPANT_KEYS = ("role", "required", "timeout_s", "sync_every", "latencies", 
 ON_REFUSED = ("wait", "fail")
 _PREFIX = re.compile(r"^[A-Za-z0-9_.\-]+(/[A-Za-z0-9_.\-]+)*$")
 MAP_PERIOD_S = 1.0  # realtime: republish the mapping this often (wall seconds)
-REANCHOR_S = 0.05  # realtime: re-anchor the mapping when the steps drift this far from it
+REANCHOR_S = 0.05  # realtime without a pacer (hooks driven by hand): re-anchor when the steps drift this far
 STOP_GRACE_S = 5.0  # wall seconds a started participant gets to exit after a completed run
 FAILED_GRACE_S = 1.0  # ... after a failed one (it may be the one that hung)
 
@@ -271,6 +274,8 @@ class ParticipantBridge(Hook):
         self._ended = False
         self._step = 0.0
         self._mapping: TimeMapping | None = None
+        self._pacer = None  # realtime: the loop's Pacer, whose schedule the mapping follows
+        self._shift = 0.0
         self._map_sent = 0
         self._last_check = 0.0
 
@@ -293,6 +298,9 @@ class ParticipantBridge(Hook):
             master_timeout_s=max(10.0, 4 * b.heartbeat_timeout_s), on_refused=b.on_refused, poll=self._poll,
             world=self.world)
         self.coordinator.start()
+        if self.mode == "realtime":
+            ctx.clock = self.clock_time
+            self._pacer = ctx.pacer
         for p in self.spec.participants.values():
             if p.command:
                 self._start(p, Path(run_dir))
@@ -305,7 +313,17 @@ class ParticipantBridge(Hook):
             return
         now = self.coordinator.clock_ns()
         m = self._mapping
-        if m is None or abs(now - m.master_ns(t)) > REANCHOR_S * 1e9:
+        pacer = self._pacer
+        if pacer is not None:
+            # the run clock is the pacer's schedule: it moves only when the schedule does (the slip and
+            # skip overrun policies), never because a step is late, so the apps' clock and the master's
+            # stamps never jump back while the loop lags (lateness is reported as deadline misses)
+            if m is None or pacer.shift != self._shift:
+                self._shift = pacer.shift
+                late_ns = round((pacer.clock() - pacer.scheduled(k)) * 1e9)
+                self._mapping = m = TimeMapping(t, now - late_ns, self.rtf)
+                self._map_sent = 0
+        elif m is None or abs(now - m.master_ns(t)) > REANCHOR_S * 1e9:
             self._mapping = m = TimeMapping(t, now, self.rtf)
             self._map_sent = 0
         if now - self._map_sent >= MAP_PERIOD_S * 1e9:
@@ -316,6 +334,14 @@ class ParticipantBridge(Hook):
         if time.monotonic() - self._last_check > 0.05:
             self._last_check = time.monotonic()
             self.coordinator.check()
+
+    def clock_time(self) -> float | None:
+        """Realtime: the run clock's simulation time now (the mapping the apps follow); None before the
+        first mapping or in lockstep."""
+        m = self._mapping
+        if m is None or self.coordinator is None:
+            return None
+        return m.sim_time(self.coordinator.clock_ns())
 
     def after_step(self, k: int, t_next: float) -> None:
         """Nothing: participants see the state of t_next at the next tick."""

@@ -283,6 +283,7 @@ class RadioBridge(Hook):
 
     def open(self, ctx: RunContext) -> dict[str, Any]:
         self.bus, self.log = ctx.bus, ctx.events
+        self._stamp_time = ctx.stamp_time  # realtime: arrivals stamped on the run clock, as the apps stamp
         fmus, t, world = ctx.fmus, ctx.t0, ctx.world
         self._world = world
         for st in self.spec.stations.values():
@@ -324,7 +325,7 @@ class RadioBridge(Hook):
             air.transmit(station, msg.seq, max(msg.t_sim, self._t_done), msg.payload, msg.stamps, about)
         for d in air.due(t_next):
             self.bus.publish(rx_key(d.receiver), d.payload, d.arrival,
-                             stamps={**d.stamps, AIR_ARRIVAL: stamp_ns(d.arrival)})
+                             stamps={**d.stamps, AIR_ARRIVAL: stamp_ns(self._stamp_time(d.arrival))})
         self._t_done = t_next
 
     def _about(self, msg) -> dict[str, Any]:

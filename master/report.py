@@ -32,7 +32,7 @@ import numpy as np
 
 from bridges.v2x import STAGES, stage_ms
 from master.collision import Body
-from master.metrics import METRICS, TRACE, applied_times, read_csv, read_jsonl, with_can_applied
+from master.metrics import METRICS, TRACE, Applications, applied_times, read_csv, read_jsonl, with_can_applied
 from master.run_records import CAMERA_DIR
 from master.verdict import verdict_lines
 
@@ -54,7 +54,7 @@ class Run:
     scenario: dict[str, Any]
     series: dict[str, np.ndarray]
     traces: list[dict[str, Any]] = field(default_factory=list)
-    applied: dict[int, list[float]] = field(default_factory=dict)
+    applied: Applications = field(default_factory=Applications)
 
     @property
     def name(self) -> str:

@@ -4,9 +4,13 @@ Keys (under the run prefix): `camera/<camera>` (bridges.camera_stream payload,
 raw or JPEG), `lidar/<vehicle>` and `gnss/<vehicle>` (bridges.sensor_stream
 payloads). Each message carries the simulation time of the sample; the
 master publishes them after the step that produced them, so in lockstep an app
-sees them before the tick of that time.
+sees them before the tick of that time. In realtime a sample carries the run
+clock's time at which it was published (`RunContext.stamp_time`), as a real
+sensor stamps its capture time on the clock the apps share.
 """
 from __future__ import annotations
+
+import dataclasses
 
 from typing import Any
 
@@ -57,8 +61,10 @@ class StreamsHook(Hook):
     def __init__(self, world_participant, camera_encoding: str = "raw"):
         self.part, self.encoding = world_participant, camera_encoding
         self.streams: SensorStreams | None = None
+        self.ctx: RunContext | None = None
 
     def open(self, ctx: RunContext) -> None:
+        self.ctx = ctx
         self.streams = SensorStreams(ctx.bus, self.encoding)
         self.part.listeners.append(self._publish)
 
@@ -66,6 +72,11 @@ class StreamsHook(Hook):
         streams = self.streams
         if not streams.labels and self.part.world is not None:
             streams.labels.update(self.part.world.scene.labels)
+        stamp = self.ctx.stamp_time(t)
+        if stamp != t:
+            t = stamp
+            if kind == "camera":
+                data = dataclasses.replace(data, t=stamp)
         streams(kind, name, t, data)
 
     def close(self, outcome: Outcome | None = None) -> dict[str, Any] | None:

@@ -30,6 +30,9 @@ def verdict_lines(metrics: dict[str, Any]) -> list[str]:
     if e2e.get("n"):
         out.append(f"E2E latency p50 {e2e['p50']:.1f} ms, p99 {e2e['p99']:.1f} ms (n = {e2e['n']}; "
                    f"{metrics.get('time_mode', '?')}, {metrics.get('latency_policy', '?')} latency policy)")
+        rtf = metrics.get("rtf")
+        if rtf and rtf != 1.0:  # realtime stamps are on the run clock: simulated ms = wall ms x rtf
+            out.append(f"  wall clock at RTF {rtf:g}: p50 {e2e['p50'] / rtf:.1f} ms, p99 {e2e['p99'] / rtf:.1f} ms")
     return out
 
 

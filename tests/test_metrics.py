@@ -6,7 +6,7 @@ import json
 import pytest
 
 from bridges import v2x
-from master.metrics import (aoi_metrics, applied_times, latency_metrics, link_metrics, read_jsonl,
+from master.metrics import (Applications, aoi_metrics, applied_times, latency_metrics, link_metrics, read_jsonl,
                             subject_deliveries, with_can_applied)
 
 
@@ -21,7 +21,7 @@ def test_stages_and_e2e_join_the_command_counter_with_its_application():
             {"t": "6.17", "event": "command", "counter": "7"},  # the counter wrapped: a later command
             {"t": "1.13", "event": "command", "counter": "9"}]
     applied = applied_times(rows)
-    assert applied == {7: [1.05, 6.17], 9: [1.13]}
+    assert applied == Applications([(1.05, 7), (1.13, 9), (6.17, 7)])
     recs = [record(0.9, 0.93, 0.932, 0.9335, 1.04, 7), record(1.0, 1.03, 1.032, 1.0338, 1.12, 9)]
     assert with_can_applied(recs[0], applied)[v2x.CAN_APPLIED] == v2x.stamp_ns(1.05)
     lat = latency_metrics(recs, applied)
@@ -32,8 +32,29 @@ def test_stages_and_e2e_join_the_command_counter_with_its_application():
 
 
 def test_a_command_never_applied_has_no_e2e():
-    lat = latency_metrics([record(0.9, 0.93, 0.932, 0.9335, 1.04, 200)], {200: [9.0]})  # 8 s later: not it
+    lat = latency_metrics([record(0.9, 0.93, 0.932, 0.9335, 1.04, 200)], Applications([(9.0, 200)]))  # 8 s later
     assert lat["e2e"]["n"] == 0 and lat["e2e"]["p50"] is None and lat["stage3"]["n"] == 1
+
+
+def test_a_superseded_command_takes_effect_with_the_newer_one_that_replaced_it():
+    """The gateway applies the newest command due at a step: a command it superseded took effect with the newer
+    one (which carries the plan forward), never with an older one or one from the counter's next lap."""
+    applied = Applications([(1.00, 25), (1.02, 27), (1.04, 28), (6.12, 26)])
+    assert applied.first(26, 1.005) == 1.02      # 26 superseded by 27, applied at 1.02
+    assert applied.first(27, 1.005) == 1.02
+    assert applied.first(28, 1.005) == 1.04      # 27 is older than 28: not it
+    assert applied.first(255, 0.99) == 1.00     # counters wrap: 25 is newer than 255
+    assert applied.first(140, 0.99) is None     # 25, 27, 28 are 'older' than 140 (more than half a lap ahead)
+    assert applied.first(26, 1.05) is None      # 6.12 is beyond the window
+
+
+def test_realtime_rows_are_matched_on_the_apps_clock():
+    """can-applied.csv's t_clock (the run clock the apps stamp with) is the application time when present."""
+    rows = [{"t": "1.00", "t_clock": "1.07", "event": "command", "counter": "3"},
+            {"t": "1.01", "t_clock": "", "event": "command", "counter": "4"}]
+    assert applied_times(rows) == Applications([(1.01, 4), (1.07, 3)])
+    stamps = with_can_applied(record(0.9, 0.93, 0.932, 0.9335, 1.04, 3), applied_times(rows))
+    assert stamps[v2x.CAN_APPLIED] == v2x.stamp_ns(1.07)
 
 
 def test_pdr_and_inter_packet_gaps_per_link():
