@@ -4,6 +4,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import shutil
 import signal
 import subprocess
@@ -219,7 +220,14 @@ def test_realtime_mode_paces_and_reports_lag(write_scenario, tmp_path):
     assert meta["wall_time_s"] >= 0.5 / 2.0 * 0.95  # paced: not faster than the target
     rt = meta["realtime"]
     assert rt["target_rtf"] == 2.0 and rt["overrun_policy"] == "catch-up"
-    assert rt["lag_s"]["n"] == 50 and rt["lag_s"]["p50"] >= 0.0 and rt["deadline_misses"] >= 0
+    assert rt["lag_s"]["n"] == 50 and rt["lag_s"]["p50"] >= 0.0
+    # what the README promises (sleep, then spin on the monotonic clock): start lag p99 <= 1 ms and no deadline
+    # misses on an idle machine; margins for a shared one: p99 <= 5 ms, max <= 50 ms, at most 2 of 50 misses
+    kept = rt["lag_s"]["p99"] <= 0.005 and rt["lag_s"]["max"] <= 0.05 and rt["deadline_misses"] <= 2
+    load = os.getloadavg()[0]
+    if not kept and load > (os.cpu_count() or 1):  # descheduled by other work: not the pacer's doing
+        pytest.skip(f"machine overloaded (load {load:.1f} on {os.cpu_count()} CPUs): pacing not measurable: {rt}")
+    assert kept, rt
     with open(tmp_path / "run" / "timing.csv") as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == 50 and all(r["lag_s"] != "" for r in rows)
@@ -280,7 +288,8 @@ def test_realtime_abort_policy_ends_the_run(write_scenario, tmp_path):
     assert result.status == "failed" and "deadline missed at step 0" in result.error
 
 
-def test_sigterm_stops_cleanly_and_keeps_rows(write_scenario, tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "Ctrl-C"])
+def test_a_signal_stops_cleanly_and_keeps_rows(write_scenario, tmp_path, sig):
     path = write_scenario('[time]\nstop = 30.0\nstep = 0.01\nmode = "realtime"\n[fmus.car]\nfmu = "{vehicle}"\n'
                           '[fmus.car.parameters]\nv0 = 10.0\n')
     out = tmp_path / "run"
@@ -290,7 +299,7 @@ def test_sigterm_stops_cleanly_and_keeps_rows(write_scenario, tmp_path):
     while not (out / "timeseries.csv").exists() or (out / "timeseries.csv").stat().st_size < 2000:
         assert time.monotonic() < deadline and proc.poll() is None, proc.communicate()
         time.sleep(0.05)
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 1 and "interrupted" in err
     meta = json.loads((out / "metadata.json").read_text())
