@@ -55,6 +55,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from bridges.geo import GeoOrigin
+from bridges.timesync import lifeline
 from bridges.timesync.clock import TimeMapping
 from bridges.timesync.coordinator import LATENCY_POLICIES, Coordinator, Expected
 from bridges.timesync.errors import TimeSyncError
@@ -387,7 +388,7 @@ class ParticipantBridge(Hook):
         env = dict(os.environ)
         env.update({"V2I_BUS": b.transport, "V2I_PREFIX": self.prefix, "V2I_CONNECT": ",".join(connect),
                     "V2I_BUS_OPTIONS": json.dumps(options), "V2I_NAME": p.name, "V2I_ROLE": p.role or "",
-                    "PYTHONUNBUFFERED": "1"})
+                    "PYTHONUNBUFFERED": "1", lifeline.ENV: str(os.getpid())})
         for name, url in self.serial_urls.items():  # the run's serial ports, e.g. V2I_SERIAL_TLC
             env[serial_env(name)] = _reachable(url)
         env.update(p.env)

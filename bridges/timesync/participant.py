@@ -28,6 +28,7 @@ import uuid
 from collections import Counter
 from typing import Callable, Iterator
 
+from bridges.timesync import lifeline
 from bridges.timesync import messages as m
 from bridges.timesync.clock import OffsetSample, TimeMapping, best_sample, offset_sample
 from bridges.timesync.errors import JoinTimeout, MasterLost, ProtocolError, Refused, TimeSyncError
@@ -91,6 +92,7 @@ class Participant:
     # -- joining -------------------------------------------------------------
     def join(self, timeout: float = 10.0, retry_s: float = 0.25) -> m.Welcome:
         """Register with the master (repeating the request until answered); Refused says why not."""
+        lifeline.arm()  # started by the master: die with it (no orphan after a kill -9 of the master)
         join = m.Join(self.name, self.role, self.session, self.publishes, self.version, os.getpid(),
                       socket.gethostname())
         deadline = time.monotonic() + timeout
