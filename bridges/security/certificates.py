@@ -6,12 +6,26 @@ certificates are files: `<name>.cert` (the certificate's COER bytes) and
 `<name>.key` (PKCS#8 PEM), so a real RSU box can be provisioned by copying two
 files. Signatures follow 1609.2's construction: ECDSA over
 SHA-256(SHA-256(tbs) || SHA-256(signer certificate, or empty for self-signed)).
+
+Time, one convention for the whole package: a moment is 1609.2 Time64, an
+`int` of microseconds since 2004-01-01 00:00:00, or an aware `datetime`,
+converted exactly (`to_time64`). `ScenarioCA.create/issue(start=...)`,
+`Signer.sign(..., generation_time)` and `Verifier.verify(..., now)` all take
+either; what they return (`Verified.generation_time_us`) is Time64.
+`time64_us(unix_seconds)` converts Unix time (what the simulation's clock
+gives). Durations are seconds (`*_s`) or, for certificate lifetimes, hours.
+
+Point forms (1609.2 EccP256CurvePoint), one per use, and only that one is
+accepted: a signature's r is `x-only` (r itself, 0 < r < n); a verification
+key is `compressed-y-0`/`compressed-y-1`. Another form of the same number
+would be a second valid spelling of a signed message or certificate.
 """
 from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
+from numbers import Integral
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +36,7 @@ from cryptography.hazmat.primitives.asymmetric.utils import (Prehashed, decode_d
                                                              encode_dss_signature)
 
 from bridges.security import oer
+from bridges.security.errors import SecurityError
 from bridges.security.oer import SecurityFormatError
 
 # 1609.2 Time32/Time64 count from 2004-01-01 00:00:00 (TAI). The simulation's
@@ -32,6 +47,10 @@ _N = int("FFFFFFFF00000000FFFFFFFFFFFFFFFFBCE6FAADA7179E84F3B9CAC2FC632551", 16)
 
 DURATION_SECONDS = {"microseconds": 1e-6, "milliseconds": 1e-3, "seconds": 1, "minutes": 60,
                     "hours": 3600, "sixtyHours": 216000, "years": 31556952}
+DURATION_US = {"microseconds": 1, "milliseconds": 1000, "seconds": 10**6, "minutes": 60 * 10**6,
+               "hours": 3600 * 10**6, "sixtyHours": 216000 * 10**6, "years": 31556952 * 10**6}
+SIGNATURE_R_FORM = "x-only"  # the one EccP256CurvePoint form a signature's r may take
+KEY_FORMS = ("compressed-y-0", "compressed-y-1")  # the forms a verification key may take
 
 
 def time32(moment: datetime) -> int:
@@ -42,6 +61,24 @@ def time32(moment: datetime) -> int:
 def time64_us(unix_seconds: float) -> int:
     """Microseconds since the 1609.2 epoch, from Unix time."""
     return round((unix_seconds - EPOCH_1609.timestamp()) * 1e6)
+
+
+def to_time64(moment: datetime | int) -> int:
+    """A moment as Time64 (µs since the 1609.2 epoch): an int already is one; an aware datetime is converted.
+
+    A float is refused rather than guessed at: Unix seconds and Time64
+    microseconds are both plain numbers, and mixing them up would put a
+    message decades off. Convert Unix time with time64_us().
+    """
+    if isinstance(moment, datetime):
+        if moment.tzinfo is None or moment.utcoffset() is None:
+            raise SecurityError(f"time {moment.isoformat()} has no time zone: give an aware datetime "
+                                f"(e.g. tzinfo=timezone.utc)")
+        return (moment - EPOCH_1609) // timedelta(microseconds=1)
+    if isinstance(moment, Integral) and not isinstance(moment, bool):
+        return int(moment)
+    raise SecurityError(f"time {moment!r} ({type(moment).__name__}): expected an aware datetime or 1609.2 "
+                        f"Time64 microseconds as an int (time64_us(unix_seconds) converts Unix time)")
 
 
 def sha256(data: bytes) -> bytes:
@@ -65,15 +102,12 @@ def public_point(key: ec.EllipticCurvePublicKey) -> tuple[str, bytes]:
 
 
 def key_from_point(point: tuple[str, Any]) -> ec.EllipticCurvePublicKey:
+    """The key of a compressed EccP256CurvePoint; SecurityFormatError for any other form (see KEY_FORMS)."""
     kind, value = point
-    if kind == "compressed-y-0":
-        raw = b"\x02" + value
-    elif kind == "compressed-y-1":
-        raw = b"\x03" + value
-    elif kind == "uncompressedP256":
-        raw = b"\x04" + value["x"] + value["y"]
-    else:
-        raise SecurityFormatError(f"verification key given as {kind!r}, which carries no usable key")
+    if kind not in KEY_FORMS:
+        raise SecurityFormatError(f"verification key given as {kind!r}; only the compressed forms "
+                                  f"({', '.join(KEY_FORMS)}) are accepted")
+    raw = (b"\x02" if kind == "compressed-y-0" else b"\x03") + value
     try:
         return ec.EllipticCurvePublicKey.from_encoded_point(_CURVE, raw)
     except ValueError:
@@ -87,14 +121,30 @@ def sign_digest(key: ec.EllipticCurvePrivateKey, digest: bytes) -> tuple[str, di
                                        "sSig": s.to_bytes(32, "big")})
 
 
-def verify_digest(key: ec.EllipticCurvePublicKey, digest: bytes, signature: tuple[str, Any]) -> bool:
+def signature_form_problem(signature: tuple[str, Any]) -> str | None:
+    """Why an ecdsaNistP256Signature is not in the one form this project signs, or None.
+
+    sign_digest writes r as x-only, reduced mod n. The same r labelled
+    compressed-y-0/1 (or given as r + n) still verifies arithmetically, so
+    accepting it would let anyone re-spell a signed message into new bytes.
+    Other signature algorithms are not a form question: verify_digest refuses them.
+    """
     kind, value = signature
     if kind != "ecdsaNistP256Signature":
-        return False
+        return None
     point_kind, r_bytes = value["rSig"]
-    if point_kind not in ("x-only", "compressed-y-0", "compressed-y-1"):
+    if point_kind != SIGNATURE_R_FORM:
+        return f"signature r given as {point_kind}; only {SIGNATURE_R_FORM} is accepted"
+    if int.from_bytes(r_bytes, "big") >= _N:
+        return "signature r is not reduced modulo the group order"
+    return None
+
+
+def verify_digest(key: ec.EllipticCurvePublicKey, digest: bytes, signature: tuple[str, Any]) -> bool:
+    kind, value = signature
+    if kind != "ecdsaNistP256Signature" or signature_form_problem(signature) is not None:
         return False
-    r = int.from_bytes(r_bytes, "big") % _N  # r is R's x coordinate reduced mod n
+    r = int.from_bytes(value["rSig"][1], "big")
     s = int.from_bytes(value["sSig"], "big")
     if not (0 < r < _N and 0 < s < _N):
         return False
@@ -114,7 +164,8 @@ class Certificate:
 
     @classmethod
     def from_bytes(cls, data: bytes) -> "Certificate":
-        return cls(bytes(data), oer.decode("Certificate", data))
+        """Only the canonical encoding: the certificate's digest (its HashedId8) is taken over these bytes."""
+        return cls(bytes(data), oer.decode_canonical("Certificate", data))
 
     @property
     def digest(self) -> bytes:
@@ -143,6 +194,13 @@ class Certificate:
         period = self.fields["toBeSigned"]["validityPeriod"]
         unit, count = period["duration"]
         return float(period["start"]), period["start"] + count * DURATION_SECONDS[unit]
+
+    def validity_us(self) -> tuple[int, int]:
+        """(start, end) as Time64, exact: what a receiver's clock (Time64) is compared with."""
+        period = self.fields["toBeSigned"]["validityPeriod"]
+        unit, count = period["duration"]
+        start = period["start"] * 10**6
+        return start, start + count * DURATION_US[unit]
 
     def public_key(self) -> ec.EllipticCurvePublicKey:
         kind, value = self.fields["toBeSigned"]["verifyKeyIndicator"]
@@ -214,13 +272,13 @@ def load_credentials(directory: str | Path, name: str) -> Credentials:
     return Credentials(certificate, key)
 
 
-def _certificate(name: str, key: ec.EllipticCurvePrivateKey, start: datetime, hours: int,
+def _certificate(name: str, key: ec.EllipticCurvePrivateKey, start_us: int, hours: int,
                  psids: list[int] | None, issuer: Credentials | None) -> Credentials:
     tbs: dict[str, Any] = {
         "id": ("name", name),
         "cracaId": b"\x00\x00\x00",
         "crlSeries": 0,
-        "validityPeriod": {"start": time32(start), "duration": ("hours", hours)},
+        "validityPeriod": {"start": start_us // 10**6, "duration": ("hours", hours)},  # Time32: whole seconds
         "verifyKeyIndicator": ("verificationKey", ("ecdsaNistP256", public_point(key.public_key()))),
     }
     if psids:
@@ -245,10 +303,10 @@ class ScenarioCA:
         self.credentials = credentials
 
     @classmethod
-    def create(cls, name: str = "v2i-scenario-ca", start: datetime | None = None,
+    def create(cls, name: str = "v2i-scenario-ca", start: datetime | int | None = None,
                hours: int = 24 * 365) -> "ScenarioCA":
-        start = start or datetime.now(timezone.utc)
-        return cls(_certificate(name, ec.generate_private_key(_CURVE), start, hours, None, None))
+        """A new root valid from `start` (a datetime or Time64; default now) for `hours`."""
+        return cls(_certificate(name, ec.generate_private_key(_CURVE), _start_us(start), hours, None, None))
 
     @classmethod
     def load(cls, directory: str | Path, name: str = "v2i-scenario-ca") -> "ScenarioCA":
@@ -258,9 +316,14 @@ class ScenarioCA:
     def certificate(self) -> Certificate:
         return self.credentials.certificate
 
-    def issue(self, name: str, psids: list[int], start: datetime | None = None,
+    def issue(self, name: str, psids: list[int], start: datetime | int | None = None,
               hours: int = 24 * 30) -> Credentials:
+        """A station certificate for `psids`, valid from `start` (a datetime or Time64; default now) for `hours`."""
         if not psids:
-            raise ValueError(f"station {name!r}: give at least one PSID it may sign for")
-        start = start or datetime.now(timezone.utc)
-        return _certificate(name, ec.generate_private_key(_CURVE), start, hours, psids, self.credentials)
+            raise SecurityError(f"station {name!r}: give at least one PSID it may sign for")
+        return _certificate(name, ec.generate_private_key(_CURVE), _start_us(start), hours, psids,
+                            self.credentials)
+
+
+def _start_us(start: datetime | int | None) -> int:
+    return to_time64(datetime.now(timezone.utc) if start is None else start)

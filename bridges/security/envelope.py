@@ -3,9 +3,27 @@
 Signed messages are real IEEE 1609.2 `Ieee1609Dot2Data` structures (COER):
 signedData { hashId sha256, tbsData { payload { data = unsecuredData(payload),
 extDataHash = SHA-256(payload) }, headerInfo { psid, generationTime } },
-signer = certificate digest (or the full certificate once per
-`certificate_interval_s`, as J2945/1 asks of BSM senders), signature
+signer = certificate digest (or the full certificate, see below), signature
 ecdsaNistP256 }.
+
+Signer identifier (`Signer(..., signer_identifier=...)`, or per message in
+`sign(..., signer_identifier=...)`): "periodic" (default) sends the full
+certificate in the first message and then at most once per
+`certificate_interval_s`, the digest (HashedId8) otherwise, as J2945/1 asks
+of BSM senders; "certificate" sends it in every message (e.g. the reply to a
+neighbour that does not know it yet); "digest" never does (for receivers
+given the station certificate beforehand: `Verifier(..., stations=[...])`).
+
+Time: every moment is 1609.2 Time64 (int µs since 2004-01-01) or an aware
+datetime (see bridges.security.certificates): `sign(payload, psid,
+generation_time)` and `verify(data, now)`, like `ScenarioCA.issue(start=)`.
+
+Canonical only: the verifier accepts one encoding per message, the one this
+project writes: canonical OER (no trailing bytes, zero padding bits, minimal
+lengths) with the signature's r as x-only. Any other spelling of a signed
+message is refused with its own reason (`trailing-bytes`, `nonzero-padding`,
+`non-canonical-encoding`, `non-canonical-signature`) before any signature
+is checked.
 
 Carrying the payload's SHA-256 next to the payload is this project's choice
 (1609.2 defines extDataHash for data sent elsewhere): the signature covers
@@ -17,12 +35,15 @@ from __future__ import annotations
 import enum
 import heapq
 from dataclasses import dataclass
+from datetime import datetime
+from difflib import get_close_matches
 from typing import Any, Iterable
 
 from bridges.security import oer
-from bridges.security.certificates import (Certificate, Credentials, sha256, sign_digest,
-                                           signing_digest, verify_digest)
-from bridges.security.oer import PROTOCOL_VERSION, SecurityFormatError
+from bridges.security.certificates import (Certificate, Credentials, sha256, sign_digest, signature_form_problem,
+                                           signing_digest, to_time64, verify_digest)
+from bridges.security.errors import PsidNotPermitted, SecurityError
+from bridges.security.oer import PROTOCOL_VERSION, NonCanonicalEncoding, SecurityFormatError
 
 PSID_BSM = 0x20            # SAE J2945/1 basic safety message
 PSID_SURROGATE_BSM = 0x7F  # test PSID SAE J2945/8 names for surrogate BSMs (testing only)
@@ -33,6 +54,10 @@ class Rejection(str, enum.Enum):
     """Why a received envelope was refused: one distinct reason per check."""
 
     MALFORMED = "malformed"
+    TRAILING_BYTES = NonCanonicalEncoding.TRAILING_BYTES      # "trailing-bytes"
+    NONZERO_PADDING = NonCanonicalEncoding.NONZERO_PADDING    # "nonzero-padding"
+    NON_CANONICAL = NonCanonicalEncoding.OTHER                # "non-canonical-encoding"
+    SIGNATURE_FORM = "non-canonical-signature"
     UNSECURED = "unsecured-not-allowed"
     UNKNOWN_SIGNER = "unknown-signer"
     UNTRUSTED_SIGNER = "untrusted-signer"
@@ -43,11 +68,16 @@ class Rejection(str, enum.Enum):
     BAD_SIGNATURE = "bad-signature"
 
 
-class VerificationError(ValueError):
+class VerificationError(SecurityError):
+    """A received envelope refused; `reason` is the Rejection (the tally key), `detail` the human why."""
+
     def __init__(self, reason: Rejection, detail: str):
         super().__init__(f"{reason.value}: {detail}")
         self.reason = reason
         self.detail = detail
+
+
+SIGNER_IDENTIFIERS = ("periodic", "certificate", "digest")
 
 
 @dataclass(frozen=True)
@@ -62,18 +92,32 @@ class Verified:
 
 
 class Signer:
-    """Signs payloads for one station with its credentials."""
+    """Signs payloads for one station with its credentials.
 
-    def __init__(self, credentials: Credentials, certificate_interval_s: float = 1.0):
+    `signer_identifier` chooses what identifies the signer in each message
+    (see the module docstring): "periodic" (full certificate at most once per
+    `certificate_interval_s`, its digest otherwise), "certificate" or "digest".
+    """
+
+    def __init__(self, credentials: Credentials, certificate_interval_s: float = 1.0, *,
+                 signer_identifier: str = "periodic"):
         self.credentials = credentials
         self.certificate_interval_us = round(certificate_interval_s * 1e6)
+        self.signer_identifier = _signer_identifier(signer_identifier)
         self._last_full_certificate_us: int | None = None
 
-    def sign(self, payload: bytes, psid: int, generation_time_us: int) -> bytes:
+    def sign(self, payload: bytes, psid: int, generation_time: datetime | int, *,
+             signer_identifier: str | None = None) -> bytes:
+        """The signed Ieee1609Dot2Data; PsidNotPermitted when the certificate does not list `psid`.
+
+        `generation_time` is Time64 (int µs) or an aware datetime;
+        `signer_identifier` overrides the Signer's choice for this message.
+        """
         certificate = self.credentials.certificate
         if psid not in certificate.psids:
-            raise ValueError(f"{certificate.name!r} may not sign PSID {psid:#x} (permitted: "
-                             f"{sorted(hex(p) for p in certificate.psids)})")
+            raise PsidNotPermitted(certificate.name, psid, certificate.psids)
+        mode = self.signer_identifier if signer_identifier is None else _signer_identifier(signer_identifier)
+        generation_time_us = to_time64(generation_time)
         tbs = {
             "payload": {"data": {"protocolVersion": PROTOCOL_VERSION,
                                  "content": ("unsecuredData", bytes(payload))},
@@ -81,17 +125,26 @@ class Signer:
             "headerInfo": {"psid": psid, "generationTime": generation_time_us},
         }
         digest = signing_digest(oer.encode("ToBeSignedData", tbs), certificate.encoded)
-        signed = {"hashId": "sha256", "tbsData": tbs, "signer": self._signer_field(generation_time_us),
+        signed = {"hashId": "sha256", "tbsData": tbs, "signer": self._signer_field(generation_time_us, mode),
                   "signature": sign_digest(self.credentials.key, digest)}
         return oer.encode("Ieee1609Dot2Data", {"protocolVersion": PROTOCOL_VERSION,
                                                "content": ("signedData", signed)})
 
-    def _signer_field(self, now_us: int) -> tuple[str, Any]:
+    def _signer_field(self, now_us: int, mode: str) -> tuple[str, Any]:
         last = self._last_full_certificate_us
-        if last is None or now_us - last >= self.certificate_interval_us or now_us < last:
-            self._last_full_certificate_us = now_us
+        if mode == "certificate" or (mode == "periodic" and (
+                last is None or now_us - last >= self.certificate_interval_us or now_us < last)):
+            self._last_full_certificate_us = now_us  # the next periodic one is due an interval after this
             return ("certificate", [self.credentials.certificate.fields])
         return ("digest", self.credentials.certificate.digest)
+
+
+def _signer_identifier(mode: str) -> str:
+    if mode not in SIGNER_IDENTIFIERS:
+        close = get_close_matches(str(mode), SIGNER_IDENTIFIERS, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise SecurityError(f"signer_identifier {mode!r}: expected one of {', '.join(SIGNER_IDENTIFIERS)}{hint}")
+    return mode
 
 
 class Verifier:
@@ -102,7 +155,9 @@ class Verifier:
     in envelopes, are checked against the roots once, and are remembered by
     digest, so later digest-signed messages verify without the chain; the
     validity periods of the station certificate and of its CA are checked
-    against the receiver's clock on every message.
+    against the receiver's clock on every message. `stations` are station
+    certificates known beforehand (a trust store, bridges.security.trust):
+    checked against the roots here, so digest-only messages verify at once.
 
     Replay memory is bounded by time, not by count: the signing digest of
     every accepted message is kept until its generation time falls out of the
@@ -113,15 +168,22 @@ class Verifier:
     """
 
     def __init__(self, trust_anchors: Iterable[Certificate], *, max_age_s: float = 0.5,
-                 max_future_s: float = 0.05, allow_unsecured: bool = False):
+                 max_future_s: float = 0.05, allow_unsecured: bool = False,
+                 stations: Iterable[Certificate] = ()):
         self.anchors = {cert.digest: cert for cert in trust_anchors}
         for cert in self.anchors.values():
-            if not cert.signed_by(None):
-                raise ValueError(f"trust anchor {cert.name!r} is not a valid self-signed certificate")
+            if not cert.signed_by(None):  # verify_digest also refuses a non-canonical signature form
+                raise SecurityError(f"trust anchor {cert.name!r} is not a valid self-signed certificate")
         self.max_age_us = round(max_age_s * 1e6)
         self.max_future_us = round(max_future_s * 1e6)
         self.allow_unsecured = allow_unsecured
         self._stations: dict[bytes, Certificate] = {}
+        for cert in stations:  # provisioned: digest-signed messages verify from the first one
+            try:
+                self._check_chain(cert)
+            except VerificationError as exc:
+                raise SecurityError(f"station certificate {cert.name!r}: {exc.detail}") from None
+            self._stations[cert.digest] = cert
         self._seen: set[bytes] = set()  # signing digests of accepted messages
         self._seen_frames: set[bytes] = set()  # SHA-256 of their received bytes
         self._expiry: list[tuple[int, bytes, bytes]] = []  # heap: (generation time, digest, frame hash)
@@ -132,7 +194,9 @@ class Verifier:
         """How many accepted messages the replay check holds now (the memory bound is observable)."""
         return len(self._seen)
 
-    def verify(self, data: bytes, now_us: int) -> Verified:
+    def verify(self, data: bytes, now: datetime | int) -> Verified:
+        """The content of an envelope accepted at `now` (Time64 or an aware datetime); VerificationError if not."""
+        now_us = to_time64(now)
         self._forget_older_than(now_us - self.max_age_us)
         frame = sha256(data)
         if frame in self._seen_frames:  # a byte-for-byte replay costs one hash, not a decode
@@ -144,6 +208,12 @@ class Verifier:
         if envelope["protocolVersion"] != PROTOCOL_VERSION:
             raise VerificationError(Rejection.MALFORMED, f"protocol version {envelope['protocolVersion']}, "
                                                          f"expected {PROTOCOL_VERSION}")
+        try:
+            oer.require_canonical("Ieee1609Dot2Data", data, envelope)
+        except NonCanonicalEncoding as exc:
+            raise VerificationError(Rejection(exc.kind), exc.reason) from None
+        except SecurityFormatError as exc:  # decoded, yet cannot be encoded again
+            raise VerificationError(Rejection.MALFORMED, exc.reason) from None
         kind, content = envelope["content"]
         if kind == "unsecuredData":
             if not self.allow_unsecured:
@@ -156,6 +226,9 @@ class Verifier:
     def _verify_signed(self, signed: dict[str, Any], now_us: int, frame: bytes) -> Verified:
         if signed["hashId"] != "sha256":
             raise VerificationError(Rejection.MALFORMED, f"hash algorithm {signed['hashId']} is not supported")
+        problem = signature_form_problem(signed["signature"])
+        if problem is not None:
+            raise VerificationError(Rejection.SIGNATURE_FORM, problem)
         tbs = signed["tbsData"]
         payload = _inner_payload(tbs["payload"])
         header = tbs["headerInfo"]
@@ -221,10 +294,10 @@ class Verifier:
                 self._stations[certificate.digest] = certificate
         else:
             raise VerificationError(Rejection.UNTRUSTED_SIGNER, "self-signed data is not accepted")
-        self._check_validity(certificate, now_us / 1e6)
+        self._check_validity(certificate, now_us)
         return certificate
 
-    def _check_validity(self, certificate: Certificate, now_s: float) -> None:
+    def _check_validity(self, certificate: Certificate, now_us: int) -> None:
         """Both links of the chain must be valid now: an expired CA vouches for nobody.
 
         Checked per message, not once when the certificate is learnt, because a
@@ -232,8 +305,8 @@ class Verifier:
         """
         issuer = self.anchors[certificate.issuer_digest]  # _check_chain put only anchored ones in _stations
         for link, role in ((certificate, "certificate"), (issuer, "CA certificate")):
-            start, end = link.validity()
-            if not start <= now_s <= end:
+            start, end = link.validity_us()
+            if not start <= now_us <= end:
                 raise VerificationError(Rejection.UNTRUSTED_SIGNER,
                                         f"{role} {link.name!r} is not valid at this time")
 
@@ -242,6 +315,10 @@ class Verifier:
         if issuer is None:
             raise VerificationError(Rejection.UNTRUSTED_SIGNER,
                                     f"certificate {certificate.name!r} is not issued by a trusted CA")
+        signature = certificate.fields.get("signature")
+        problem = signature_form_problem(signature) if signature is not None else None
+        if problem is not None:
+            raise VerificationError(Rejection.SIGNATURE_FORM, f"certificate {certificate.name!r}: {problem}")
         try:
             valid = certificate.signed_by(issuer)
         except SecurityFormatError as exc:
