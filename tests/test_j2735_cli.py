@@ -63,9 +63,9 @@ def test_unknown_id_prints_the_id_and_octets(capsys):
     ("0014ff", "MessageFrame"),
     ("", "no bytes"),
 ])
-def test_decode_bad_input_exits_1_with_the_reason(capsys, text, reason):
+def test_decode_bad_input_exits_2_with_the_reason(capsys, text, reason):
     code, out, err = _decode(capsys, text)
-    assert code == 1 and out == "" and reason in err
+    assert code == 2 and out == "" and reason in err
 
 
 @pytest.mark.parametrize("document,reason", [
@@ -80,7 +80,7 @@ def test_decode_bad_input_exits_1_with_the_reason(capsys, text, reason):
 def test_encode_bad_json_names_the_problem(tmp_path, capsys, document, reason):
     path = tmp_path / "bad.json"
     path.write_text(document)
-    assert main(["j2735", "encode", str(path)]) == 1
+    assert main(["j2735", "encode", str(path)]) == 2
     assert reason in capsys.readouterr().err
 
 
@@ -90,7 +90,7 @@ def test_encode_a_range_error_names_the_field(tmp_path, capsys):
     document["message"]["coreData"]["lat"] = 950000000
     path = tmp_path / "m.json"
     path.write_text(json.dumps(document))
-    assert main(["j2735", "encode", str(path)]) == 1
+    assert main(["j2735", "encode", str(path)]) == 2
     err = capsys.readouterr().err
     assert "lat" in err and "out of range" in err
 

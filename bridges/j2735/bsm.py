@@ -3,7 +3,12 @@
 `Bsm.encode()` gives the UPER MessageFrame; `Bsm.decode(bytes)` reads one.
 Part II content the typed fields do not cover (path history, trailers, unknown
 ids) is kept verbatim in `other_part_ii`, regional extensions in `regional`,
-so decode → encode is lossless.
+so decode → encode is lossless; a secMark the standard reserves (61000..65534)
+is kept as `scales.Reserved` and sent back as received.
+
+Editions: the emergency alerts' SSP index is `sspRights` in J2735 2016 and
+`notUsed` in 2020; `EmergencyInfo.ssp_rights` is either, by the codec's
+edition (`encode(codec)`, `to_asn1(edition)`), and either is read.
 """
 from __future__ import annotations
 
@@ -13,6 +18,7 @@ from typing import Any
 
 from bridges.j2735 import scales
 from bridges.j2735.codec import J2735Codec, J2735Error, default_codec
+from bridges.j2735.editions import SSP_MEMBERS, Edition, edition as edition_named
 
 TRANSMISSION_STATES = ("neutral", "park", "forwardGears", "reverseGears",
                        "reserved1", "reserved2", "reserved3", "unavailable")
@@ -30,7 +36,7 @@ class EmergencyInfo:
     siren: str = "unavailable"
     lightbar: str = "unavailable"
     response_type: str | None = None
-    ssp_rights: int = 0
+    ssp_rights: int = 0                 # 2016 sspRights, 2020 notUsed (send 0 in 2020)
     multi: str = "unavailable"
 
 
@@ -64,7 +70,8 @@ class Bsm:
     regional: list[dict[str, Any]] | None = None  # regional extensions, kept verbatim
 
     # -- to and from asn1 values ----------------------------------------------------
-    def to_asn1(self) -> dict[str, Any]:
+    def to_asn1(self, edition: str | Edition | None = None) -> dict[str, Any]:
+        """asn1tools values in `edition`'s names (None: the default codec's edition)."""
         if not isinstance(self.temporary_id, (bytes, bytearray)) or len(self.temporary_id) != 4:
             raise J2735Error(f"temporary_id: 4 bytes required, got {self.temporary_id!r}")
         if not isinstance(self.msg_count, int) or not 0 <= self.msg_count <= 127:
@@ -97,8 +104,9 @@ class Bsm:
         part_ii = list(self.other_part_ii)
         if self.emergency is not None:
             position = len(part_ii) if self.emergency_position is None else self.emergency_position
-            part_ii.insert(position, {"partII-Id": 1,
-                                      "partII-Value": {"vehicleAlerts": _emergency_to_asn1(self.emergency)}})
+            ssp_member = (edition_named(edition) if edition is not None else default_codec().edition).ssp_member
+            part_ii.insert(position, {"partII-Id": 1, "partII-Value": {
+                "vehicleAlerts": _emergency_to_asn1(self.emergency, ssp_member)}})
         if part_ii:
             message["partII"] = part_ii
         if self.regional:
@@ -120,7 +128,7 @@ class Bsm:
         brakes = core["brakes"]
         return cls(
             temporary_id=core["id"], msg_count=core["msgCnt"],
-            sec_mark_ms=_int_or_none(scales.SEC_MARK.from_wire(core["secMark"])),
+            sec_mark_ms=_ms(scales.SEC_MARK.from_wire(core["secMark"])),
             latitude=scales.LATITUDE.from_wire(core["lat"]),
             longitude=scales.LONGITUDE.from_wire(core["long"]),
             elevation=scales.ELEVATION.from_wire(core["elev"]),
@@ -144,8 +152,9 @@ class Bsm:
 
     # -- wire ---------------------------------------------------------------------
     def encode(self, codec: J2735Codec | None = None) -> bytes:
-        """The UPER MessageFrame (messageId 20)."""
-        return (codec or default_codec()).encode(20, self.to_asn1())
+        """The UPER MessageFrame (messageId 20), in the codec's edition."""
+        codec = codec or default_codec()
+        return codec.encode(20, self.to_asn1(codec.edition))
 
     @classmethod
     def decode(cls, data: bytes, codec: J2735Codec | None = None) -> "Bsm":
@@ -155,16 +164,17 @@ class Bsm:
         return cls.from_asn1(frame.message)
 
 
-_TYPED_EMERGENCY_FIELDS = {"sspRights", "sirenUse", "lightsUse", "multi", "responseType"}
+_TYPED_EMERGENCY_FIELDS = {"sirenUse", "lightsUse", "multi", "responseType", *SSP_MEMBERS}
 _UNAVAILABLE_BRAKES = {"wheelBrakes": (b"\x80", 5), "traction": "unavailable", "abs": "unavailable",
                        "scs": "unavailable", "brakeBoost": "unavailable", "auxBrakes": "unavailable"}
 
 
-def _int_or_none(value: float | None) -> int | None:
-    return None if value is None else int(value)
+def _ms(value: float | None) -> int | None:
+    """Milliseconds as an int; None and a Reserved code as they are."""
+    return value if value is None or isinstance(value, scales.Reserved) else int(value)
 
 
-def _emergency_to_asn1(info: EmergencyInfo) -> dict[str, Any]:
+def _emergency_to_asn1(info: EmergencyInfo, ssp_member: str) -> dict[str, Any]:
     for name, value, allowed in (("siren", info.siren, SIREN_STATES), ("lightbar", info.lightbar, LIGHTBAR_STATES),
                                  ("multi", info.multi, ("unavailable", "singleVehicle", "multiVehicle", "reserved"))):
         if value not in allowed:
@@ -173,7 +183,7 @@ def _emergency_to_asn1(info: EmergencyInfo) -> dict[str, Any]:
         raise J2735Error(f"emergency.response_type: {info.response_type!r} is not one of {RESPONSE_TYPES}")
     if not isinstance(info.ssp_rights, int) or not 0 <= info.ssp_rights <= 31:
         raise J2735Error(f"emergency.ssp_rights: {info.ssp_rights!r} is outside 0..31")
-    details: dict[str, Any] = {"sspRights": info.ssp_rights, "sirenUse": info.siren,
+    details: dict[str, Any] = {ssp_member: info.ssp_rights, "sirenUse": info.siren,
                                "lightsUse": info.lightbar, "multi": info.multi}
     if info.response_type is not None:
         details["responseType"] = info.response_type
@@ -182,7 +192,8 @@ def _emergency_to_asn1(info: EmergencyInfo) -> dict[str, Any]:
 
 def _emergency_from_asn1(details: dict[str, Any]) -> EmergencyInfo:
     return EmergencyInfo(siren=details["sirenUse"], lightbar=details["lightsUse"],
-                         response_type=details.get("responseType"), ssp_rights=details["sspRights"],
+                         response_type=details.get("responseType"),
+                         ssp_rights=next(details[m] for m in SSP_MEMBERS if m in details),
                          multi=details["multi"])
 
 

@@ -7,6 +7,13 @@ Unknown ids stay as octets, so they re-encode to the same bytes.
 
 Bytes come from the network: whatever they are, `decode` raises only
 `J2735Error` (with a reason), never an asn1tools or Python error.
+
+Editions (bridges.j2735.editions): `J2735Codec(edition="2016")` speaks J2735
+2016, the default 2020 (or $V2I_J2735_EDITION). The built-in module carries
+both editions' differences in two small modules and compiles the one asked
+for. A user's licensed files are one edition: the codec tells which from the
+compiled types (TimeMark's range, the SSP member's name) and refuses an
+`edition` that says otherwise. Their load-time fixes are in licensed_asn1.py.
 """
 from __future__ import annotations
 
@@ -18,9 +25,12 @@ from typing import Any
 
 import asn1tools
 
-from bridges.j2735 import _asn1tools_fixes
+from bridges.j2735 import _asn1tools_fixes, licensed_asn1
+from bridges.j2735.editions import EDITION_ENV, EDITIONS, Edition, edition as edition_named
+from bridges.j2735.errors import J2735Error
 
 BUILTIN_MODULE = Path(__file__).with_name("v2i-j2735.asn")
+BUILTIN_NAME = "V2I-J2735"      # the module that imports the edition's types from V2I-J2735-<edition>
 ASN1_DIR_ENV = "V2I_J2735_ASN1_DIR"
 
 # DSRCmsgID -> inner type name (SAE J2735 Table of message ids)
@@ -37,14 +47,7 @@ PART_II_TYPES: dict[int, str] = {0: "VehicleSafetyExtensions", 1: "SpecialVehicl
 PART_II_IDS: dict[str, int] = {name: pid for pid, name in PART_II_TYPES.items()}
 
 MAX_FRAME_BYTES = 65535  # larger than any J2735 message over the air; bounds the work per frame
-
-
-class J2735Error(ValueError):
-    """A message that cannot be decoded or encoded; `reason` says why."""
-
-    def __init__(self, reason: str):
-        super().__init__(reason)
-        self.reason = reason
+REQUIRED_TYPES = ("MessageFrame", *MESSAGE_TYPES.values(), *PART_II_TYPES.values())
 
 
 @dataclass(frozen=True)
@@ -78,24 +81,127 @@ def asn1_sources(asn1_dir: str | os.PathLike | None = None) -> list[Path]:
     return files
 
 
+@dataclass(frozen=True)
+class _Compiled:
+    types: dict[str, Any]        # the codec's types by name (asn1tools compiled types)
+    spec: Any                    # the asn1tools Specification
+    notes: tuple[str, ...]       # what was changed at load time (licensed files)
+
+
 @lru_cache(maxsize=4)
-def _compile(sources: tuple[Path, ...]):
+def _compile_builtin(edition_name: str) -> _Compiled:
+    """The built-in module with `edition_name`'s types: V2I-J2735 imports them from V2I-J2735-<edition>."""
+    chosen = f"{BUILTIN_NAME}-{edition_name}"
+    parsed = asn1tools.parse_files([str(BUILTIN_MODULE)])
+    for name in [m for m in parsed if m.startswith(BUILTIN_NAME + "-") and m != chosen]:
+        del parsed[name]
+    imports = parsed[BUILTIN_NAME]["imports"]
+    for source in [s for s in imports if s.startswith(BUILTIN_NAME + "-")]:
+        imports[chosen] = imports.pop(source)
+    return _compile_parsed(parsed, [BUILTIN_MODULE], ())
+
+
+@lru_cache(maxsize=4)
+def _compile_licensed(sources: tuple[Path, ...]) -> _Compiled:
     try:
-        return asn1tools.compile_files([str(p) for p in sources], "uper")
+        text, notes = licensed_asn1.load(list(sources))
+        parsed = asn1tools.parse_string(text)
+    except (asn1tools.ParseError, OSError) as exc:
+        raise J2735Error(f"cannot compile ASN.1 {[p.name for p in sources]}: {exc}") from None
+    return _compile_parsed(parsed, sources, tuple(notes))
+
+
+def _compile_parsed(parsed: dict[str, Any], sources, notes: tuple[str, ...]) -> _Compiled:
+    imports = {name: {source: list(names) for source, names in module.get("imports", {}).items()}
+               for name, module in parsed.items()}
+    try:
+        spec = asn1tools.compile_dict(parsed, "uper")
     except (asn1tools.ParseError, asn1tools.CompileError) as exc:
         raise J2735Error(f"cannot compile ASN.1 {[p.name for p in sources]}: {exc}") from None
+    types, missing = {}, []
+    for name in REQUIRED_TYPES:
+        found = _resolve(spec.modules, imports, name)
+        if found is None:
+            missing.append(name)
+        else:
+            types[name] = found
+    if missing:
+        raise J2735Error(f"ASN.1 in {[p.name for p in sources]} lacks types {missing}")
+    return _Compiled(types, spec, notes)
+
+
+def _resolve(modules: dict[str, dict[str, Any]], imports: dict[str, dict[str, list[str]]], name: str):
+    """The compiled type `name` as the messages see it. A name two modules define (SAE's 2016 AddGrpB and
+    DSRC both define TimeMark) is not in asn1tools' `Specification.types`: it is looked up from the module
+    that defines MessageFrame, following IMPORTS (breadth first) as asn1tools does for each reference."""
+    holders = [m for m, types in modules.items() if name in types]
+    if len(holders) <= 1:
+        return modules[holders[0]][name] if holders else None
+    start = [m for m, types in modules.items() if "MessageFrame" in types]
+    seen, queue = set(), start[:1]
+    while queue:
+        module = queue.pop(0)
+        if module in seen or module not in modules:
+            continue
+        seen.add(module)
+        if name in modules[module]:
+            return modules[module][name]
+        sources = imports.get(module, {})
+        chosen = next((source for source, names in sources.items() if name in names), None)
+        queue = [chosen] if chosen else queue + list(sources)
+    return None
+
+
+def detect_edition(types: dict[str, Any]) -> Edition:
+    """The edition of compiled J2735 types: TimeMark's upper bound (SPAT ... minEndTime) and the SSP member
+    of SpecialVehicleExtensions.vehicleAlerts."""
+    try:
+        mark = _member(types["SPAT"], "intersections", "states", "state-time-speed", "timing", "minEndTime")
+        alerts = _member(types["SpecialVehicleExtensions"], "vehicleAlerts")
+        time_mark_max, ssp = mark.maximum, alerts.root_members[0].name
+    except (KeyError, AttributeError, IndexError, StopIteration) as exc:
+        raise J2735Error(f"cannot tell the J2735 edition of the ASN.1: no SPAT TimeMark or EmergencyDetails "
+                         f"as J2735 defines them ({type(exc).__name__}: {exc})") from None
+    for known in EDITIONS.values():
+        if (known.time_mark_max, known.ssp_member) == (time_mark_max, ssp):
+            return known
+    raise J2735Error(f"the ASN.1 is no J2735 edition this codec knows: TimeMark 0..{time_mark_max}, "
+                     f"EmergencyDetails.{ssp}; known: " + "; ".join(e.describe() for e in EDITIONS.values()))
+
+
+def _member(compiled: Any, *path: str) -> Any:
+    """The compiled member at `path` below a compiled SEQUENCE (through SEQUENCE OF elements)."""
+    node = compiled.type
+    for name in path:
+        node = getattr(node, "element_type", node)
+        members = list(node.root_members) + [m for m in (getattr(node, "additions", None) or ())
+                                             if hasattr(m, "name")]
+        node = next(m for m in members if m.name == name)
+    return node
 
 
 class J2735Codec:
-    """UPER codec for the J2735 subset; `J2735Codec(asn1_dir)` uses a user's licensed files."""
+    """UPER codec for the J2735 subset.
 
-    def __init__(self, asn1_dir: str | os.PathLike | None = None):
+    `J2735Codec(asn1_dir, edition)`: the built-in module in `edition` ("2016",
+    "2020"; None: $V2I_J2735_EDITION, else 2020), or a user's licensed files
+    (their own edition; an `edition` that differs is refused). `edition` is
+    the Edition in use, `asn1_notes` what was changed when loading the files.
+    """
+
+    def __init__(self, asn1_dir: str | os.PathLike | None = None, edition: str | int | Edition | None = None):
         self.sources = tuple(asn1_sources(asn1_dir))
-        self.spec = _compile(self.sources)
-        missing = [name for name in ("MessageFrame", *MESSAGE_TYPES.values(), *PART_II_TYPES.values())
-                   if name not in self.spec.types]
-        if missing:
-            raise J2735Error(f"ASN.1 in {[p.name for p in self.sources]} lacks types {missing}")
+        if self.sources == (BUILTIN_MODULE,):
+            self.edition = edition_named(edition)
+            compiled = _compile_builtin(self.edition.name)
+        else:
+            asked = edition_named(edition) if edition is not None or os.environ.get(EDITION_ENV) else None
+            compiled = _compile_licensed(self.sources)
+            self.edition = detect_edition(compiled.types)
+            if asked is not None and asked != self.edition:
+                raise J2735Error(f"edition {asked.name} asked for, but the ASN.1 in "
+                                 f"{[p.name for p in self.sources]} is {self.edition.describe()}")
+        self.spec, self._types, self.asn1_notes = compiled.spec, compiled.types, compiled.notes
 
     # -- decoding -------------------------------------------------------------
     def decode(self, data: bytes) -> Frame:
@@ -139,7 +245,10 @@ class J2735Codec:
         if len(data) > MAX_FRAME_BYTES:
             raise J2735Error(f"{what}: {len(data)} bytes, more than the {MAX_FRAME_BYTES} a frame may hold")
         try:
-            return self.spec.decode(type_name, data, check_constraints=True)
+            compiled = self._type(type_name)
+            decoded = compiled.decode(data)
+            compiled.check_constraints(decoded)
+            return decoded
         except asn1tools.DecodeError as exc:
             raise J2735Error(f"{what}: {_short(exc)}") from None
         except asn1tools.ConstraintsError as exc:
@@ -147,6 +256,12 @@ class J2735Codec:
         except (ValueError, IndexError, KeyError, TypeError, NotImplementedError, OverflowError,
                 RecursionError, asn1tools.Error) as exc:
             raise J2735Error(f"{what}: malformed ({type(exc).__name__}: {_short(exc)})") from None
+
+    def _type(self, type_name: str) -> Any:
+        compiled = self._types[type_name] if type_name in self._types else self.spec.types.get(type_name)
+        if compiled is None:
+            raise asn1tools.Error(f"type {type_name!r} is not in the ASN.1 (or is defined in two modules)")
+        return compiled
 
     # -- encoding -------------------------------------------------------------
     def encode(self, message_id: int | str, message: dict[str, Any]) -> bytes:
@@ -183,7 +298,10 @@ class J2735Codec:
 
     def _encode_type(self, type_name: str, value: Any) -> bytes:
         try:
-            return self.spec.encode(type_name, value, check_constraints=True)
+            compiled = self._type(type_name)
+            compiled.check_types(value)
+            compiled.check_constraints(value)
+            return bytes(compiled.encode(value))
         except asn1tools.ConstraintsError as exc:
             raise J2735Error(f"{type_name}: value out of range: {_short(exc)}") from None
         except (asn1tools.EncodeError, asn1tools.Error) as exc:
@@ -194,7 +312,8 @@ class J2735Codec:
 
 @lru_cache(maxsize=1)
 def default_codec() -> J2735Codec:
-    """The process-wide codec (built-in module, or V2I_J2735_ASN1_DIR when set)."""
+    """The process-wide codec: the built-in module, or V2I_J2735_ASN1_DIR when set, in the edition
+    V2I_J2735_EDITION names (default 2020; a licensed folder's own edition)."""
     return J2735Codec()
 
 

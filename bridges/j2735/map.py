@@ -27,12 +27,21 @@ its lane; that is what this module gives, both ways:
 * Computed lanes (a lane described as an offset copy of another) are resolved:
   their `nodes` are filled in on decoding (and ignored on encoding, where the
   `ComputedLane` description is sent).
+* Nodes sent as latitude/longitude (node-LatLon) are placed in the same local
+  metres with pymap3d (east/north on the WGS-84 ellipsoid at the reference
+  point) and keep their `latlon`; the node after one continues from it.
+  A regional node offset is kept verbatim (`Node.regional_offset`) and placed
+  on the previous node. `Lane.polyline` lists a lane's (x, y);
+  `IntersectionGeometry.geodetic(x, y)` gives a point's latitude/longitude.
 
 Decoding then encoding reproduces the bytes of the deployed MAPs in
 `tests/fixtures/interop/j2735_vectors.json`: every element the typed fields do
 not model (node attribute data, segment attributes, regional extensions,
 restriction lists, road segments...) is kept verbatim in an `other` dict, and
-the node offset width of each received node in `Node.delta_choice`.
+the node offset width of each received node in `Node.delta_choice` (and the
+small/large choice of a computed lane's offsets in `ComputedLane.offset_choices`).
+Generated MAPs using every element re-encode to their bytes too
+(tests/test_j2735_map_typed.py).
 """
 from __future__ import annotations
 
@@ -42,6 +51,7 @@ from typing import Any, Iterable
 
 from bridges.j2735 import scales
 from bridges.j2735.codec import J2735Codec, J2735Error, default_codec
+from bridges.j2735.fields import finite as _finite, from_wire as _from_wire, wire as _scaled
 
 MESSAGE_ID = 18
 
@@ -111,9 +121,13 @@ class Node:
     local: tuple[str, ...] = ()            # NodeAttributeXY names here, e.g. ("stopLine",)
     d_width: float | None = None           # m: lane width change from this node on (None: none sent)
     d_elevation: float | None = None       # m: elevation change at this node (10 cm steps)
-    other: dict[str, Any] | None = None    # the node's other attributes (segment attributes, data, regional)
+    other: dict[str, Any] | None = None    # the node's other attributes (segment attributes, data, regional);
+                                           # {}: an empty attribute set was received (and is sent again)
     delta_choice: str | None = None        # "node-XY1".."node-XY6" as received; None: the smallest that fits
-    latlon: tuple[float, float] | None = None  # (lat, lon) deg when the node is sent as node-LatLon
+    latlon: tuple[float | None, float | None] | None = None  # (lat, lon) deg when sent as node-LatLon (None: the
+                                                             # wire's 'unavailable'; x, y then repeat the previous)
+    regional_offset: dict[str, Any] | None = None  # a regional NodeOffsetPointXY, verbatim: x, y repeat the previous
+                                                   # node's, as this module cannot place it
 
     @property
     def stop_line(self) -> bool:
@@ -145,6 +159,7 @@ class ComputedLane:
     scale_x: float | None = None   # factor, 1.0 = unchanged
     scale_y: float | None = None
     other: dict[str, Any] | None = None  # regional extensions, verbatim
+    offset_choices: tuple[str, str] | None = None  # ("small"|"large",) * 2 as received; None: the smallest that fits
 
 
 @dataclass
@@ -164,6 +179,11 @@ class Lane:
     overlays: list[int] | None = None
     computed: ComputedLane | None = None  # set: `nodes` were derived from another lane (see ComputedLane)
     other: dict[str, Any] | None = None   # regional extensions of the lane and of its attributes, verbatim
+
+    @property
+    def polyline(self) -> list[tuple[float, float]]:
+        """The lane's centreline: (east, north) metres from the reference point of each node, node 0 first."""
+        return [(n.x, n.y) for n in self.nodes]
 
     @property
     def stop_line(self) -> tuple[float, float] | None:
@@ -228,6 +248,13 @@ class IntersectionGeometry:
     speed_limits: list[tuple[str, float]] = field(default_factory=list)  # (SpeedLimitType name, m/s)
     other: dict[str, Any] | None = None   # preemptPriorityData, regional extensions, verbatim
 
+    def geodetic(self, x: float, y: float) -> tuple[float, float]:
+        """(lat, lon) deg of the point x m east, y m north of the reference point (pymap3d, WGS-84)."""
+        from bridges.geo import GeoOrigin
+
+        lat, lon, _ = GeoOrigin(self.ref_latitude, self.ref_longitude, self.ref_elevation or 0.0).to_geodetic(x, y)
+        return float(lat), float(lon)
+
     def lane(self, lane_id: int) -> Lane:
         for lane in self.lanes:
             if lane.lane_id == lane_id:
@@ -264,8 +291,11 @@ class IntersectionGeometry:
                 best = (d, lane, along - stop_along)
         return None if best is None else (best[1], best[2])
 
-    def resolve_computed(self) -> None:
-        """Fill the nodes of computed lanes from their reference lanes (J2735ComputedLane)."""
+    def resolve_computed(self, strict: bool = True) -> None:
+        """Fill the nodes of computed lanes from their reference lanes (J2735 ComputedLane).
+
+        A reference lane the intersection lacks, or one itself computed, is an error naming both lanes; with
+        `strict=False` (decoding: the message is what it is) such a lane keeps no nodes and its ComputedLane."""
         for lane in self.lanes:
             c = lane.computed
             if c is None:
@@ -273,9 +303,13 @@ class IntersectionGeometry:
             try:
                 ref = self.lane(c.reference_lane)
             except KeyError:
+                if not strict:
+                    continue
                 raise J2735Error(f"lane {lane.lane_id}: computed from lane {c.reference_lane}, which the "
                                  f"intersection does not have") from None
             if ref.computed is not None:
+                if not strict:
+                    continue
                 raise J2735Error(f"lane {lane.lane_id}: computed from lane {c.reference_lane}, itself computed")
             pts = [(n.x + c.offset_x, n.y + c.offset_y) for n in ref.nodes]
             if pts:
@@ -338,10 +372,14 @@ class MapData:
 
 
 # -- to asn1 -------------------------------------------------------------------------------------------
-def _position(lat: float, lon: float, elevation: float | None, regional) -> dict[str, Any]:
-    p: dict[str, Any] = {"lat": scales.LATITUDE.to_wire(lat), "long": scales.LONGITUDE.to_wire(lon)}
+def _position(lat: float, lon: float, elevation: float | None, regional, where: str,
+              elevation_code: int | None = None) -> dict[str, Any]:
+    p: dict[str, Any] = {"lat": _scaled(scales.LATITUDE, lat, f"{where}: ref_latitude"),
+                         "long": _scaled(scales.LONGITUDE, lon, f"{where}: ref_longitude")}
     if elevation is not None:
-        p["elevation"] = scales.ELEVATION.to_wire(elevation)
+        p["elevation"] = _scaled(scales.ELEVATION, elevation, f"{where}: ref_elevation")
+    elif elevation_code is not None:  # the wire's 'unavailable' (-4096), received and sent again
+        p["elevation"] = elevation_code
     if regional is not None:
         p["regional"] = regional
     return p
@@ -360,7 +398,8 @@ def _intersection_to_asn1(g: IntersectionGeometry) -> dict[str, Any]:
         out["name"] = g.name
     out["id"] = ref
     out["revision"] = g.revision
-    out["refPoint"] = _position(g.ref_latitude, g.ref_longitude, g.ref_elevation, other.pop("refPointRegional", None))
+    out["refPoint"] = _position(g.ref_latitude, g.ref_longitude, g.ref_elevation, other.pop("refPointRegional", None),
+                                where, other.pop("refPointElevation", None))
     if g.lane_width is not None:
         out["laneWidth"] = _in_range(_cm(g.lane_width, f"{where}: lane_width"), 0, 32767, f"{where}: lane_width")
     if g.speed_limits:
@@ -405,7 +444,7 @@ def _lane_to_asn1(lane: Lane, where: str) -> dict[str, Any]:
         out["maneuvers"] = _names_to_bits(lane.maneuvers, MANEUVERS, f"{where}: maneuvers")
     if lane.computed is not None:
         out["nodeList"] = _computed_to_asn1(lane.computed, where)
-    else:
+    elif "nodeList" not in other:  # else an extension of NodeListXY kept verbatim
         out["nodeList"] = ("nodes", _nodes_to_asn1(lane.nodes, where))
     if lane.connections:
         out["connectsTo"] = [_connection_to_asn1(c, where) for c in lane.connections]
@@ -421,9 +460,13 @@ def _nodes_to_asn1(nodes: list[Node], where: str) -> list[dict[str, Any]]:
     out, px, py = [], 0, 0
     for i, node in enumerate(nodes):
         what = f"{where}: node {i}"
-        if node.latlon is not None:
+        if node.regional_offset is not None:
+            delta = ("regional", node.regional_offset)
+            cx, cy = px, py
+        elif node.latlon is not None:
             lat, lon = node.latlon
-            delta = ("node-LatLon", {"lon": scales.LONGITUDE.to_wire(lon), "lat": scales.LATITUDE.to_wire(lat)})
+            delta = ("node-LatLon", {"lon": _scaled(scales.LONGITUDE, lon, f"{what}: longitude"),
+                                     "lat": _scaled(scales.LATITUDE, lat, f"{what}: latitude")})
             cx, cy = _cm(node.x, f"{what}.x"), _cm(node.y, f"{what}.y")
         else:
             cx, cy = _cm(node.x, f"{what}.x"), _cm(node.y, f"{what}.y")
@@ -439,7 +482,7 @@ def _nodes_to_asn1(nodes: list[Node], where: str) -> list[dict[str, Any]]:
         px, py = cx, cy
         entry: dict[str, Any] = {"delta": delta}
         attributes = _node_attributes(node, what)
-        if attributes:
+        if attributes or node.other is not None:  # other == {}: an empty attribute set was received
             entry["attributes"] = attributes
         out.append(entry)
     return out
@@ -477,17 +520,25 @@ def _node_attributes(node: Node, what: str) -> dict[str, Any]:
 
 
 def _computed_to_asn1(c: ComputedLane, where: str) -> tuple[str, dict[str, Any]]:
-    def offset(value: float, what: str):
+    def offset(value: float, choice: str | None, what: str):
         cm = _cm(value, what)
-        if -2047 <= cm <= 2047:
+        if choice is None:
+            choice = "small" if -2047 <= cm <= 2047 else "large"
+        if choice == "small" and -2047 <= cm <= 2047:
             return ("small", cm)
+        if choice not in ("small", "large"):
+            raise J2735Error(f"{what}: offset choice {choice!r} is not 'small' or 'large'")
         return ("large", _in_range(cm, -32767, 32767, what))
 
+    x_choice, y_choice = c.offset_choices or (None, None)
     out: dict[str, Any] = {"referenceLaneId": c.reference_lane,
-                           "offsetXaxis": offset(c.offset_x, f"{where}: computed.offset_x"),
-                           "offsetYaxis": offset(c.offset_y, f"{where}: computed.offset_y")}
+                           "offsetXaxis": offset(c.offset_x, x_choice, f"{where}: computed.offset_x"),
+                           "offsetYaxis": offset(c.offset_y, y_choice, f"{where}: computed.offset_y")}
     if c.rotation_deg is not None:
-        out["rotateXY"] = round((c.rotation_deg % 360.0) / _ROTATION_STEP) % 28800
+        rotation = _finite(c.rotation_deg, f"{where}: computed.rotation_deg")
+        raw = round(rotation / _ROTATION_STEP)
+        # 0..359.9875 deg as given, other angles wrapped; 360 deg is the wire's 28800 ('unavailable'), as received
+        out["rotateXY"] = raw if 0 <= raw <= 28800 else round((rotation % 360.0) / _ROTATION_STEP) % 28800
     for key, value in (("scaleXaxis", c.scale_x), ("scaleYaxis", c.scale_y)):
         if value is not None:
             out[key] = _in_range(round((value - 1.0) / _SCALE_STEP), -2048, 2047, f"{where}: computed.{key}",
@@ -523,16 +574,18 @@ def _intersection_from_asn1(g: dict[str, Any]) -> IntersectionGeometry:
     ref = g["refPoint"]
     if "regional" in ref:
         other["refPointRegional"] = ref["regional"]
-    lat, lon = scales.LATITUDE.from_wire(ref["lat"]), scales.LONGITUDE.from_wire(ref["long"])
-    elevation = scales.ELEVATION.from_wire(ref["elevation"]) if "elevation" in ref else None
+    if ref.get("elevation") == scales.ELEVATION.unavailable:
+        other["refPointElevation"] = ref["elevation"]
+    lat, lon = _from_wire(scales.LATITUDE, ref["lat"]), _from_wire(scales.LONGITUDE, ref["long"])
+    elevation = _from_wire(scales.ELEVATION, ref["elevation"]) if "elevation" in ref else None
     geometry = IntersectionGeometry(
         intersection_id=g["id"]["id"], region=g["id"].get("region"), revision=g["revision"], name=g.get("name"),
         ref_latitude=lat, ref_longitude=lon, ref_elevation=elevation,
         lane_width=g["laneWidth"] / 100.0 if "laneWidth" in g else None,
-        speed_limits=[(s["type"], scales.SPEED.from_wire(s["speed"])) for s in g.get("speedLimits", ())],
+        speed_limits=[(s["type"], _from_wire(scales.SPEED, s["speed"])) for s in g.get("speedLimits", ())],
         other=other or None)
     geometry.lanes = [_lane_from_asn1(l, geometry) for l in g["laneSet"]]
-    geometry.resolve_computed()
+    geometry.resolve_computed(strict=False)
     return geometry
 
 
@@ -570,35 +623,37 @@ def _nodes_from_asn1(nodes: list[dict[str, Any]], g: IntersectionGeometry) -> li
     x_m = y_m = 0.0
     for entry in nodes:
         choice, value = entry["delta"]
-        latlon = None
+        latlon = regional = None
         if choice == "node-LatLon":
-            from bridges.geo import GeoOrigin
-
-            lat, lon = scales.LATITUDE.from_wire(value["lat"]), scales.LONGITUDE.from_wire(value["lon"])
-            origin = GeoOrigin(g.ref_latitude, g.ref_longitude, g.ref_elevation or 0.0)
-            x_m, y_m, _ = (float(v) for v in origin.to_local(lat, lon))
-            px, py = round(x_m * 100), round(y_m * 100)
+            lat, lon = _from_wire(scales.LATITUDE, value["lat"]), _from_wire(scales.LONGITUDE, value["lon"])
+            if None not in (lat, lon, g.ref_latitude, g.ref_longitude):
+                x_m, y_m = _local_metres(g, lat, lon)
+                px, py = round(x_m * 100), round(y_m * 100)
             latlon, choice = (lat, lon), None
         elif choice in _NODE_BITS:
             px, py = px + value["x"], py + value["y"]
             x_m, y_m = px / 100.0, py / 100.0
-        else:
-            raise J2735Error(f"MAP node offset {choice!r} (regional) is not supported by the typed MAP")
+        else:  # a regional offset: kept verbatim, the node placed on the previous one
+            regional, choice = value, None
         attrs = dict(entry.get("attributes") or {})
+        empty_set = "attributes" in entry and not entry["attributes"]
         local = tuple(attrs.pop("localNode", ()))
         d_width = attrs.pop("dWidth", None)
         d_elev = attrs.pop("dElevation", None)
         out.append(Node(x_m, y_m, local=local,
                         d_width=None if d_width is None else d_width * _D_WIDTH_STEP,
                         d_elevation=None if d_elev is None else d_elev * _D_ELEVATION_STEP,
-                        other=attrs or None, delta_choice=choice, latlon=latlon))
+                        other=attrs or ({} if empty_set else None), delta_choice=choice, latlon=latlon,
+                        regional_offset=regional))
     return out
 
 
 def _computed_from_asn1(c: dict[str, Any]) -> ComputedLane:
     other = {k: v for k, v in c.items()
              if k not in ("referenceLaneId", "offsetXaxis", "offsetYaxis", "rotateXY", "scaleXaxis", "scaleYaxis")}
+    choices = (c["offsetXaxis"][0], c["offsetYaxis"][0])
     return ComputedLane(
+        offset_choices=None if choices == _smallest_offsets(c) else choices,
         reference_lane=c["referenceLaneId"], offset_x=c["offsetXaxis"][1] / 100.0, offset_y=c["offsetYaxis"][1] / 100.0,
         rotation_deg=c["rotateXY"] * _ROTATION_STEP if "rotateXY" in c else None,
         scale_x=1.0 + c["scaleXaxis"] * _SCALE_STEP if "scaleXaxis" in c else None,
@@ -613,3 +668,17 @@ def _connection_from_asn1(c: dict[str, Any]) -> Connection:
         signal_group=c.get("signalGroup"), connection_id=c.get("connectionID"),
         remote_intersection=remote["id"] if remote else None, remote_region=remote.get("region") if remote else None,
         user_class=c.get("userClass"))
+
+
+def _smallest_offsets(c: dict[str, Any]) -> tuple[str, str]:
+    return tuple("small" if -2047 <= c[k][1] <= 2047 else "large" for k in ("offsetXaxis", "offsetYaxis"))
+
+
+def _local_metres(g: IntersectionGeometry, lat: float, lon: float) -> tuple[float, float]:
+    """East and north metres of (lat, lon) from the intersection's reference point (pymap3d, on the WGS-84
+    ellipsoid at the reference point's height)."""
+    from bridges.geo import GeoOrigin
+
+    origin = GeoOrigin(g.ref_latitude, g.ref_longitude, g.ref_elevation or 0.0)
+    x, y, _ = origin.to_local(lat, lon)
+    return float(x), float(y)
