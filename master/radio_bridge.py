@@ -17,12 +17,17 @@ the hook unwraps the envelope without verifying it, decodes a BSM's position
 and takes the nearest vehicle within a gate (master.v2x_subject). The metrics'
 age of information per "receiver<-subject" is built on these (master.metrics).
 
-`mode = "bypass"` is for real radios: apps hear each other directly and the
-air only logs what was sent.
+`mode = "bypass"` lets apps hear each other directly and the air only logs
+what was sent. `mode = "rsu"` puts real radios in the loop: the frames of one
+station go to a real roadside unit as Immediate Forward records and what an
+on-board unit forwards back reaches another station, with the real delay;
+every other link stays on the channel model (master.rsu_link has the keys).
 
     [v2x]
-    mode = "channel"            # or "bypass"
+    mode = "channel"            # or "bypass", or "rsu" (real radios: master.rsu_link)
     max_range_m = 1000.0
+    j2735_edition = "2016"      # optional, or "2020": started apps get it as V2I_J2735_EDITION
+                                # (bridges/j2735/editions.py); unset, each app's default (2020)
     [v2x.channel]               # V2XChannel parameters (fmus/channel/model.py ChannelParams)
     technology = "dsrc"
     [v2x.stations.rsu1]
@@ -35,16 +40,19 @@ from __future__ import annotations
 import heapq
 import itertools
 import math
+import random
 import threading
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Callable
 
+from bridges.j2735.editions import EDITIONS
 from bridges.v2x import AIR_ARRIVAL, FRAME, TX_KEY, rx_key, stamp_ns, stamp_s
+from master import rsu_link
 from master.hooks import Hook, Outcome, RunContext
 from master.tables import Table, did_you_mean, is_number
 
-MODES = ("channel", "bypass")
-_KEYS = ("mode", "max_range_m", "channel", "stations")
+MODES = ("channel", "bypass", "rsu")
+_KEYS = ("mode", "max_range_m", "channel", "stations", "j2735_edition") + rsu_link.KEYS
 _STATION_KEYS = ("position", "vehicle")
 
 
@@ -61,9 +69,13 @@ class V2xSpec:
     max_range_m: float = 1000.0
     channel: dict[str, Any] = field(default_factory=dict)  # ChannelParams overrides
     stations: dict[str, Station] = field(default_factory=dict)
+    rsu: rsu_link.RsuLinkSpec | None = None  # mode = "rsu": the link through the real devices
+    j2735_edition: str | None = None  # the J2735 edition on the air, when set: started apps get V2I_J2735_EDITION
 
     def resolved(self) -> dict[str, Any]:
         return {"mode": self.mode, "max_range_m": self.max_range_m, "channel": dict(self.channel),
+                **({"j2735_edition": self.j2735_edition} if self.j2735_edition else {}),
+                **(self.rsu.resolved() if self.rsu is not None else {}),
                 "stations": {n: {k: v for k, v in (("position", list(s.position) if s.position else None),
                                                     ("vehicle", s.vehicle)) if v is not None}
                              for n, s in self.stations.items()}}
@@ -84,6 +96,8 @@ def parse_v2x(table: Any, instances: dict, problem: Callable[[str, str], None]) 
     t.unknown_keys(_KEYS)
     spec = V2xSpec()
     spec.mode = t.choice("mode", MODES, spec.mode)
+    if "j2735_edition" in t:  # unset: each app's own default (2020, or its licensed files' edition)
+        spec.j2735_edition = t.choice("j2735_edition", tuple(EDITIONS), None)
     spec.max_range_m = t.number("max_range_m", spec.max_range_m, low=0, low_open=True, expected="a number > 0")
     channel = t.sub("channel", "a table of V2XChannel parameters")
     if channel.ok:
@@ -126,6 +140,12 @@ def parse_v2x(table: Any, instances: dict, problem: Callable[[str, str], None]) 
                 s.problem("vehicle", f"instance {vehicle!r} has no x, y outputs to place the station")
                 continue
             spec.stations[name] = Station(name, vehicle=vehicle)
+    if spec.mode == "rsu":
+        spec.rsu = rsu_link.parse_link(t, list(stations.raw), spec.channel.get("technology", "dsrc"))
+    else:
+        for key in rsu_link.KEYS:
+            if key in t:
+                t.problem(key, f"only with mode = \"rsu\" (real radios in the loop); mode is {spec.mode!r}")
     return spec if t.ok else None
 
 
@@ -175,6 +195,8 @@ class Air:
         from fmus.channel.model import ChannelModel, ChannelParams
 
         self.spec, self.position = spec, position
+        # links carried by something else (mode = "rsu": real devices), skipped here
+        self.elsewhere = {(spec.rsu.rsu_station, spec.rsu.obu_station)} if spec.rsu is not None else set()
         self.obstruction = obstruction or (lambda p, q: (False, 0, 0.0))
         self.log = log or (lambda event: None)
         base = replace(ChannelParams(), **spec.channel)
@@ -185,6 +207,30 @@ class Air:
         self._heap: list[_Pending] = []
         self._order = itertools.count()
         self.counts = {"sent": 0, "delivered": 0, "dropped": 0, "out_of_range": 0, "unknown_sender": 0}
+        # scenario events ("link"): (tx, rx, loss, extra delay) by handle; "*" matches any station
+        self.impairments: dict[int, tuple[str, str, float, float]] = {}
+        self._impair_rng = random.Random(base.seed ^ 0x5EED)  # decisions repeat from run to run
+        self._handles = itertools.count(1)
+
+    def impair(self, tx: str, rx: str, loss: float, delay_s: float) -> int:
+        """From now on, frames on tx -> rx that the channel delivers are dropped with probability `loss`
+        (reason "event") or arrive `delay_s` later; returns the handle that `restore` takes."""
+        handle = next(self._handles)
+        self.impairments[handle] = (tx, rx, float(loss), float(delay_s))
+        return handle
+
+    def restore(self, handle: int) -> None:
+        self.impairments.pop(handle, None)
+
+    def _impaired(self, sender: str, receiver: str) -> tuple[bool, float]:
+        """(dropped by an event, extra delay) for one delivery on sender -> receiver."""
+        delay = 0.0
+        for tx, rx, loss, extra in self.impairments.values():
+            if tx in ("*", sender) and rx in ("*", receiver):
+                if loss > 0 and self._impair_rng.random() < loss:
+                    return True, 0.0
+                delay += extra
+        return False, delay
 
     def transmit(self, sender: str, seq: int, t_tx: float, payload: bytes, stamps: dict | None = None,
                  about: dict | None = None) -> None:
@@ -208,7 +254,7 @@ class Air:
         model = self.models[sender]
         h_tx, h_rx = model.p.tx_antenna_height_m, model.p.rx_antenna_height_m
         for receiver in self.spec.stations:
-            if receiver == sender:
+            if receiver == sender or (sender, receiver) in self.elsewhere:
                 continue
             rx = self.position(receiver, t_tx)
             d = math.dist(tx, rx)
@@ -228,6 +274,14 @@ class Air:
                                 "reason": "channel", "per": round(link["per"], 4), **facts}, about))
                 continue
             arrival = t_tx + float(link["latency_s"])
+            if self.impairments:
+                dropped, extra = self._impaired(sender, receiver)
+                if dropped:
+                    self.counts["dropped"] += 1
+                    self.log(_with({"event": "v2x_dropped", "t": t_tx, "from": sender, "to": receiver, "seq": seq,
+                                    "reason": "event", **facts}, about))
+                    continue
+                arrival += extra
             heapq.heappush(self._heap, _Pending(arrival, next(self._order), receiver, sender, seq, t_tx, payload,
                                                 dict(stamps or {}), about))
             self.log(_with({"event": "v2x_scheduled", "t": t_tx, "from": sender, "to": receiver, "seq": seq,
@@ -260,6 +314,10 @@ class RadioBridge(Hook):
 
     Frames are tied to the world vehicle they describe (`subject`, `frame_t` in
     the air's events; master.v2x_subject), once per frame put on the air.
+
+    With `mode = "rsu"` the frames of the RSU station also go to the real RSU
+    and the OBU's forwards come back through `link` (master.rsu_link), whose
+    sockets are opened here and closed with the hook.
     """
 
     name = "v2x"
@@ -280,6 +338,9 @@ class RadioBridge(Hook):
         self._order = itertools.count()
         self.late = 0
         self.subjects = None  # master.v2x_subject.SubjectFinder, once open
+        self.link: rsu_link.RsuLink | None = None  # mode = "rsu", once open
+        self._sockets: rsu_link.LinkSockets | None = None
+        self._stamp_time: Callable[[float], float] = lambda t: t
 
     def open(self, ctx: RunContext) -> dict[str, Any]:
         self.bus, self.log = ctx.bus, ctx.events
@@ -294,9 +355,27 @@ class RadioBridge(Hook):
         obstruction = world.line_of_sight if world is not None else None
         self.air = Air(self.spec, self._position, obstruction, self.log)
         self.subjects = _subject_finder(ctx)
+        if self.spec.rsu is not None:
+            self.link = self._open_link(ctx)
         self._sub = self.bus.subscribe(TX_KEY.format("*"), callback=self._on_tx)
         self._t_done = t
-        return {"mode": self.spec.mode, "stations": list(self.spec.stations)}
+        return {"mode": self.spec.mode, "stations": list(self.spec.stations),
+                **({"rsu": self.spec.rsu.resolved()} if self.spec.rsu is not None else {})}
+
+    def _open_link(self, ctx: RunContext) -> rsu_link.RsuLink:
+        from master.errors import SimulationError
+
+        spec = self.spec.rsu
+        try:
+            self._sockets = rsu_link.LinkSockets(spec)
+        except OSError as exc:
+            raise SimulationError("v2x", ctx.t0, "[v2x] rsu link open",
+                                  f"rsu = {str(spec.rsu)!r}, obu_listen = {str(spec.obu_listen)!r}: {exc} "
+                                  f"(obu_listen must be an address of this host and a free UDP port)") from None
+        link = rsu_link.RsuLink(spec, self._sockets.send, self._sockets.next_datagram, self.log,
+                                lockstep=ctx.mode == "lockstep", t0=ctx.t0)
+        link.kernel_timestamps = self._sockets.kernel_timestamps
+        return link
 
     def _position(self, name: str, t: float) -> tuple[float, float, float]:
         st = self.spec.stations[name]
@@ -322,8 +401,14 @@ class RadioBridge(Hook):
                 self.late += 1
             station = msg.key.rsplit("/", 1)[-1]
             about = self._about(msg) if station in self.spec.stations else None
-            air.transmit(station, msg.seq, max(msg.t_sim, self._t_done), msg.payload, msg.stamps, about)
-        for d in air.due(t_next):
+            t_tx = max(msg.t_sim, self._t_done)
+            air.transmit(station, msg.seq, t_tx, msg.payload, msg.stamps, about)
+            if self.link is not None and station == self.spec.rsu.rsu_station:
+                self.link.transmit(station, msg.seq, t_tx, msg.payload, msg.stamps, about)
+        deliveries = air.due(t_next)
+        if self.link is not None:
+            deliveries = sorted(deliveries + self.link.due(t_next), key=lambda d: d.arrival)
+        for d in deliveries:
             self.bus.publish(rx_key(d.receiver), d.payload, d.arrival,
                              stamps={**d.stamps, AIR_ARRIVAL: stamp_ns(self._stamp_time(d.arrival))})
         self._t_done = t_next
@@ -340,10 +425,14 @@ class RadioBridge(Hook):
         if self._sub is not None:
             self._sub.close()
             self._sub = None
+        if self._sockets is not None:
+            self._sockets.close()
+            self._sockets = None
         air = self.air
         return {"mode": self.spec.mode, **(air.counts if air else {}), "late": self.late,
                 "in_flight_at_end": air.in_flight if air else 0,
-                **(self.subjects.section() if self.subjects is not None else {})}
+                **(self.subjects.section() if self.subjects is not None else {}),
+                **({"rsu": self.link.section()} if self.link is not None else {})}
 
 
 def _subject_finder(ctx: RunContext):

@@ -222,7 +222,7 @@ def test_fmu_variable_checks_causality_and_type():
 
 # -- the sections -----------------------------------------------------------------------------------------
 def test_every_section_names_a_reader_that_exists():
-    assert section_keys() == ("serial", "world", "bridge", "participants", "can", "v2x", "pki")
+    assert section_keys() == ("serial", "world", "bridge", "participants", "can", "v2x", "pki", "events")
     for section in SECTIONS:
         assert callable(section.load()), section
 
@@ -277,7 +277,7 @@ def test_every_problem_of_every_section_in_one_error(write_scenario, fmu_dir):
         "can.on_timeout: expected one of brake, zero_accel, hold, manual, got 'pray'",
         "participants.rsu.sync_every: expected an integer >= 1",
         "participants.rsu.timeout_s: expected wall-clock seconds > 0",
-        "v2x.mode: expected one of channel, bypass, got 'air'",
+        "v2x.mode: expected one of channel, bypass, rsu, got 'air'",
         "v2x: needs a [bridge] table",
     ]
     problems = info.value.problems

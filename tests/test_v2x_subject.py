@@ -153,7 +153,7 @@ def _run(frames, fmus, stop: float, step: float = 0.01, layout=None, mode="chann
     spec = V2xSpec(mode=mode, max_range_m=500.0,
                    stations={"rsu": Station("rsu", position=(6.5, 6.5, 6.0)), "cav": Station("cav", vehicle="cav")})
     log = []
-    ctx = SimpleNamespace(bus=FakeBus(), events=log.append, fmus=fmus, t0=0.0, world=None,
+    ctx = SimpleNamespace(bus=FakeBus(), events=log.append, fmus=fmus, t0=0.0, world=None, stamp_time=lambda t: t,
                           scenario=SimpleNamespace(world=layout or _layout()))
     hook = RadioBridge(spec)
     hook.open(ctx)
