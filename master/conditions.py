@@ -139,7 +139,8 @@ def signals_of(instances) -> tuple[list[str], list[str]]:
     for name, inst in instances.items():
         outputs = set()
         for var in inst.model_description.modelVariables:
-            if var.type in ("Real", "Float64", "Float32", "Integer", "Int32", "Boolean") and "[" not in var.name:
+            if (var.type in ("Real", "Float64", "Float32", "Integer", "Int32", "Boolean") and "[" not in var.name
+                    and not var.dimensions):  # an FMI 3 array is no one number
                 signals.append(f"{name}.{var.name}")
                 if var.causality == "output":
                     outputs.add(var.name)

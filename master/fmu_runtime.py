@@ -2,11 +2,13 @@
 
 Hides the FMI-version differences behind get/set by typed value-reference
 groups (values come back as the same Python types whatever the FMI version:
-str for String, 0/1 for Boolean) and turns every failed call into a
-SimulationError naming the instance, the call and the FMU's own last log
-messages. An FMU that ends the simulation itself (FMI 2: fmi2Discard with
-fmi2Terminated; FMI 3: terminateSimulation) is not a failure: the instance
-reports it through `on_terminate` and the master stops after the step.
+str for String, 0/1 for Boolean; an FMI 3 array as its elements, flat) and
+turns every failed call into a SimulationError naming the instance, the call
+and the FMU's own last log messages. A value outside its variable's type range
+is refused before it reaches ctypes, which would wrap or overflow it silently.
+An FMU that ends the simulation itself (FMI 2: fmi2Discard with fmi2Terminated;
+FMI 3: terminateSimulation) is not a failure: the instance reports it through
+`on_terminate` and the master stops after the step.
 """
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ from ctypes import byref
 from typing import Any, Callable, Sequence
 
 from master.errors import SimulationError
-from master.fmu_variables import family
+from master.fmu_variables import element_names, family, flatten, outside_type_range, shape, size, type_range
 
 _FMI2_ACCESS = {"real": ("getReal", "setReal"), "integer": ("getInteger", "setInteger"),
                 "boolean": ("getBoolean", "setBoolean"), "string": ("getString", "setString")}
@@ -62,6 +64,7 @@ class FmuInstance:
         # called with the reason when the FMU ends the simulation (the master's RunContext.request_stop)
         self.on_terminate: Callable[[str], None] | None = None
         self._keepalive = None  # ctypes callbacks must outlive the instance
+        self._by_vr: dict[tuple[str, int], Any] | None = None  # (access key, value reference) -> variable
 
     # -- access ---------------------------------------------------------------
     def access_key(self, var_name: str) -> str:
@@ -69,19 +72,71 @@ class FmuInstance:
         var = self.variables[var_name]
         return var.type if self.fmi3 else family(var.type)
 
+    def size(self, var_name: str) -> int:
+        """How many values the variable holds (an FMI 3 array: all its elements)."""
+        return size(self.variables[var_name])
+
+    def shape(self, var_name: str) -> tuple[int, ...]:
+        """An FMI 3 array's dimensions; () for a scalar."""
+        return shape(self.variables[var_name])
+
+    def _variable(self, key: str, vr: int):
+        """The variable behind a value reference of a getter/setter family (the first of its aliases)."""
+        if self._by_vr is None:
+            self._by_vr = {}
+            for var in self.md.modelVariables:
+                self._by_vr.setdefault((self.access_key(var.name), var.valueReference), var)
+        return self._by_vr.get((key, vr))
+
     def accessor(self, key: str, vrs: Sequence[int], setter: bool) -> Callable:
-        """A bound get(vrs) / set(vrs, values) call for a group of variables of one kind."""
+        """A bound get(vrs) / set(vrs, values) call for a group of variables of one kind.
+
+        Values are flat: an array variable takes (and gives) all its elements in
+        row-major order. A setter refuses a value outside the variable's type range
+        (ctypes would wrap or overflow it silently) with a SimulationError naming it.
+        """
         table = _FMI3_ACCESS if self.fmi3 else _FMI2_ACCESS
         method = getattr(self._slave, table[key][1 if setter else 0])
         vrs = list(vrs)
         call = "set" if setter else "get"
+        variables = [self._variable(key, vr) for vr in vrs]
         if setter:
-            def set_values(values):
+            bounded = key if self.fmi3 else {"integer": "Integer"}.get(key)
+            if bounded is None or type_range(bounded, self.fmi3) is None:
+                def set_values(values):
+                    try:
+                        method(vrs, values)
+                    except Exception as exc:
+                        self.fail(f"{call} values", exc)
+                return set_values
+
+            low, high = type_range(bounded, self.fmi3)
+            names = [n for var, vr in zip(variables, vrs)
+                     for n in (element_names(var.name, shape(var)) if var is not None else [f"#{vr}"])]
+            if bounded == "Float32":
+                def fits(v):
+                    return not (abs(v) > high and abs(v) != float("inf"))
+            else:
+                def fits(v):
+                    return low <= v <= high
+
+            def set_checked(values):
+                for name, value in zip(names, values):
+                    if not fits(value):
+                        self.refuse(f"{call} values",
+                                    f"{name}: {outside_type_range(bounded, value, self.fmi3)}; not set")
                 try:
                     method(vrs, values)
                 except Exception as exc:
                     self.fail(f"{call} values", exc)
-            return set_values
+            return set_checked
+
+        n_values = sum(size(var) if var is not None else 1 for var in variables)
+        if self.fmi3 and n_values != len(vrs):
+            raw = method
+
+            def method(vrs):
+                return raw(vrs, n_values)
 
         convert = (_FMI3_CONVERT if self.fmi3 else _FMI2_CONVERT).get(key)
         if convert is None:
@@ -100,19 +155,23 @@ class FmuInstance:
         return get_converted
 
     def set_by_name(self, values: dict[str, Any]) -> None:
+        """Set variables by name; an array takes a list (nested row by row, or flat) of its elements."""
         groups: dict[str, tuple[list[int], list[Any]]] = {}
         for name, value in values.items():
             vrs, vals = groups.setdefault(self.access_key(name), ([], []))
             vrs.append(self.variables[name].valueReference)
-            vals.append(value)
+            dims = shape(self.variables[name])
+            vals.extend(flatten(value, dims) if dims else [value])
         for key, (vrs, vals) in groups.items():
             self.accessor(key, vrs, setter=True)(vals)
 
     def get_by_name(self, names: Sequence[str]) -> dict[str, Any]:
+        """Current values by name: a scalar's value, an array's elements as a flat list."""
         out = {}
         for name in names:
             var = self.variables[name]
-            out[name] = self.accessor(self.access_key(name), [var.valueReference], setter=False)()[0]
+            got = self.accessor(self.access_key(name), [var.valueReference], setter=False)()
+            out[name] = list(got) if shape(var) else got[0]
         return out
 
     # -- life cycle -------------------------------------------------------------
@@ -230,6 +289,11 @@ class FmuInstance:
             except Exception:
                 pass
         self._slave = None
+
+    def refuse(self, call: str, detail: str):
+        """The master refuses a call before it reaches the FMU: a SimulationError, but the
+        instance is still sound (it is terminated and freed normally)."""
+        raise SimulationError(self.name, self.time, call, detail)
 
     def fail(self, call: str, exc: BaseException):
         status = getattr(exc, "status", None)  # fmpy's FMICallException carries the FMI status
