@@ -17,7 +17,9 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 import sys
+import tomllib
 from pathlib import Path
 
 from av_app.config import ConfigError, describe, load
@@ -61,13 +63,29 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--stats-every", type=float, help="wall seconds between stats lines [app.stats_every_s]")
     p.add_argument("--join-timeout", type=float, help="wall seconds to wait for the master [app.join_timeout_s]")
     p.add_argument("--plan-log", help="write one JSON line per plan to this file [app.plan_log]")
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=VALUE",
+                   help="set any config key (repeatable), e.g. --set route.cruise_speed=5.556; VALUE is a TOML "
+                        "literal, or a bare word taken as a string (the named flags above win over it)")
     p.add_argument("--print-config", action="store_true", help="print the resolved configuration as JSON and exit")
     p.add_argument("--log-level", default="WARNING", help="DEBUG, INFO, WARNING (default), ERROR")
     return p
 
 
 def overrides(args: argparse.Namespace) -> dict[str, dict]:
+    """The config tables the flags set: --set TABLE.KEY=VALUE first, the named flags over them.
+    ConfigError naming each malformed --set."""
     out: dict[str, dict] = {}
+    problems = []
+    for item in getattr(args, "set", None) or []:
+        key, sep, text = item.partition("=")
+        table, dot, name = key.strip().partition(".")
+        value = _set_value(text.strip())
+        if not sep or not dot or not table or not name or value is None:
+            problems.append(f"--set {item}: expected TABLE.KEY=VALUE with a TOML value or a bare word")
+            continue
+        out.setdefault(table, {})[name] = value
+    if problems:
+        raise ConfigError(problems, "--set")
     for flag, (table, key, kind) in _FLAGS.items():
         value = getattr(args, flag, None)
         if value is None:
@@ -80,6 +98,17 @@ def overrides(args: argparse.Namespace) -> dict[str, dict]:
             value = not value
         out.setdefault(table, {})[key] = value
     return out
+
+
+def _set_value(text: str):
+    """A TOML literal (5.5, true, "a b", [1, 2]), or a bare word as that string; None when neither."""
+    try:
+        doc = tomllib.loads(f"v = {text}")
+        if list(doc) == ["v"]:
+            return doc["v"]
+    except tomllib.TOMLDecodeError:
+        pass
+    return text if re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.:/@+\-]*", text) else None
 
 
 def main(argv: list[str] | None = None) -> int:

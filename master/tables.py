@@ -26,6 +26,17 @@ from master.fmu_variables import family as type_family
 Problem = Callable[[str, str], None]  # (dotted key, reason)
 
 
+def deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """`over` laid on `base`: tables merge key by key, anything else replaces (scenario `extends`, `--set`)."""
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = deep_merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
 def did_you_mean(name: Any, candidates: Iterable[str]) -> str | None:
     """The hint "did you mean 'x' or 'y'?" for the names close to a misspelt one; None when none is close."""
     if not isinstance(name, str):

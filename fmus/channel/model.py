@@ -21,9 +21,13 @@ For each link and packet:
              1 - PER(SNR) (errors.py: Goubet LUT or NIST for 802.11p, R1-160284
              LUT for C-V2X), and lost to load with probability L(d) (analytic.py:
              Sepulcre et al. for 802.11p, Gonzalez-Martin et al. for C-V2X).
-             delivered = u < (1 - PER) (1 - L), u a uniform keyed by
-             (seed, tx_id, rx_id, seq).
-  pdr        E[(1 - PER)(1 - L)] over shadowing and fading at this distance and
+             A further loss_prob (default 0) drops that share of the
+             remaining frames whatever the radio conditions: a lossy link
+             stated directly (what-if sweeps over packet loss).
+             delivered = u < (1 - PER) (1 - L) (1 - loss_prob), u a uniform
+             keyed by (seed, tx_id, rx_id, seq): raising loss_prob only ever
+             removes deliveries, never adds one.
+  pdr        E[(1 - PER)(1 - L)] (1 - loss_prob) over shadowing and fading at this distance and
              obstruction: the analytical PDR of the link (no draw).
   latency    802.11p: EDCA access (AIFS, backoff under load) + airtime +
              propagation + processing; C-V2X: SPS access delay + 1 ms subframe +
@@ -108,6 +112,7 @@ class ChannelParams:
     sps_t1_ms: float = 4.0
     sps_t2_ms: float = 100.0
     sps_keep_prob: float = 0.0
+    loss_prob: float = 0.0              # extra loss, independent of the radio (what-if sweeps)
     seed: int = 0
 
     def validate(self) -> None:
@@ -134,6 +139,8 @@ class ChannelParams:
                 raise ValueError(f"parameter {name} must be >= 0, got {getattr(self, name)!r}")
         if not 0.0 <= self.cbr_target < 0.95:
             raise ValueError(f"parameter cbr_target must be in [0, 0.95) (0: use density), got {self.cbr_target!r}")
+        if not 0.0 <= self.loss_prob < 1.0:
+            raise ValueError(f"parameter loss_prob must be in [0, 1), got {self.loss_prob!r}")
         if not 0.0 <= self.sps_keep_prob <= 0.8:
             raise ValueError(f"parameter sps_keep_prob must be in [0, 0.8] (TS 36.331), got {self.sps_keep_prob!r}")
         if not self.sps_t1_ms <= 4 or not 20 <= self.sps_t2_ms <= 100:
@@ -389,7 +396,7 @@ class ChannelModel:
             load = self.load.loss(flat_d, excess.flat[0])[:, 0].reshape(excess.shape)
         else:
             load = self.load_loss(d, excess)
-        return self.link_success(mean, sigma, d, packet_bytes) * (1.0 - load)
+        return self.link_success(mean, sigma, d, packet_bytes) * (1.0 - load) * (1.0 - self.p.loss_prob)
 
     def _losses(self, d, walls, inside, h_tx, h_rx):
         """(path loss incl. building loss, building loss, shadowing sigma) for these links."""
@@ -456,14 +463,14 @@ class ChannelModel:
         per_link = np.where(rx_power < p.sensing_dbm, 1.0, per_link)
         excess = pl - self.los_path_loss_db(d)
         load = self.load_loss(d, excess)
-        success = (1.0 - per_link) * (1.0 - load)
+        success = (1.0 - per_link) * (1.0 - load) * (1.0 - p.loss_prob)
         delivered = hash_u(p.seed, access.Stream.DECODE, keys) < success
 
         pdr = np.empty(shape)
         for s in sizes:
             sel = size == s
             pdr[sel] = self.link_success(mean[sel], sigma[sel], d[sel], int(s))
-        pdr = pdr * (1.0 - load)
+        pdr = pdr * (1.0 - load) * (1.0 - p.loss_prob)
 
         latency = self._latency(keys[0], seq, size, d)
         return LinkState(d.copy(), pl, np.broadcast_to(extra, shape).copy(), shadow.copy(), fade, rx_power, snr,
@@ -520,9 +527,9 @@ class ChannelModel:
             load = float(self.load_loss(d, pl - road))
         else:
             load = 0.0
-        success = (1.0 - per_link) * (1.0 - load)
+        success = (1.0 - per_link) * (1.0 - load) * (1.0 - p.loss_prob)
         delivered = access.hash_uniform_scalar(p.seed, access.Stream.DECODE, tx_id, rx_id, seq) < success
-        pdr = float(self._success(mean, sigma, m, curve)) * (1.0 - load)
+        pdr = float(self._success(mean, sigma, m, curve)) * (1.0 - load) * (1.0 - p.loss_prob)
         latency = float(self._latency(tx_id, seq, size, d))
         return {"distance_m": d, "path_loss_db": pl, "obstacle_loss_db": extra, "shadowing_db": shadow,
                 "fading_db": fade, "rx_power_dbm": rx_power, "snr_db": snr, "per": 1.0 - success, "pdr": pdr,

@@ -82,6 +82,8 @@ _REAL_PARAMETERS = (
     Var("sps_t2_ms", "parameter", "C-V2X SPS selection window end T2 (20..100 ms)", "ms", _P.sps_t2_ms),
     Var("sps_keep_prob", "parameter", "C-V2X probability of keeping the reservation at counter expiry", "1",
         _P.sps_keep_prob),
+    Var("loss_prob", "parameter", "Extra packet loss whatever the radio conditions, in [0, 1) (what-if studies; "
+        "0 = none): a frame the channel would deliver is dropped with this probability", "1", _P.loss_prob),
 )
 
 _INTEGER_PARAMETERS = (
