@@ -239,6 +239,7 @@ class CanBridge(Hook):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._events = None
+        self._injector = None  # a second sender on the bus, opened by the first injected frame
         self._csv = None
         self._csv_file = None
         self._logged = Tally()
@@ -460,10 +461,31 @@ class CanBridge(Hook):
         with self._cond:
             self.gateway.status_sent(counter, t)
 
+    def inject(self, frames: list[tuple[int, bytes]]) -> int:
+        """Send (arbitration id, data) frames on the gateway's bus from a sender of their own, as a faulty or
+        hostile node on the same wires would (scenario events); the gateway tallies what it cannot use."""
+        if self.codec is None:
+            raise RuntimeError("the CAN bridge is not open")
+        if self._injector is None:
+            self._injector = open_bus(self.config.bus)
+        sent = 0
+        for arbitration_id, data in frames:
+            self._injector.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False,
+                                            dlc=len(data)))
+            sent += 1
+        self.stats["injected"] = self.stats.get("injected", 0) + sent
+        return sent
+
     def close(self, outcome: Outcome | None = None) -> dict[str, Any]:
         """Stop receiving, close the bus and logs; the run's CAN statistics (empty if never opened)."""
         if self.codec is None:
             return {}
+        if self._injector is not None:
+            try:
+                self._injector.shutdown()
+            except Exception:
+                pass
+            self._injector = None
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)

@@ -20,6 +20,10 @@ folder can be re-measured after the fact (`v2i report` does):
   sample time after the first delivery, now - the camera-frame time of the
   freshest information about the subject that had arrived; `{p50, p99, max, n}`
   (the air ties each frame to the vehicle it describes, see master.radio_bridge);
+* `v2x_rejected`: per receiving station, the frames its app refused, by reason
+  (the verifier's and decoder's tally keys, e.g. `untrusted-signer`,
+  `outside-time-window`), from the summary the app prints at its end
+  (`participant-NAME.log`, the last JSON line with an `obu` section);
 * `time_mode`, `rtf`, `latency_policy`: under which rules the numbers were taken
   (`rtf`: a realtime run's target real-time factor, None in lockstep; its
   stamps are on the run clock, so wall-clock milliseconds = latency / rtf).
@@ -225,10 +229,48 @@ def run_metrics(run_dir: Path, meta: dict[str, Any]) -> dict[str, Any] | None:
     out["latency_ms"] = latency_metrics(traces, applied_times(read_csv(run_dir / "can-applied.csv")))
     out["pdr"], out["ipg_ms"] = link_metrics(events)
     out["aoi_ms"] = _aoi(events, meta.get("sim_time_reached_s") or 0.0)
+    out["v2x_rejected"] = rejected_by_receiver(run_dir)
     out["time_mode"] = meta.get("mode")
     out["rtf"] = (meta.get("realtime") or {}).get("target_rtf") if meta.get("mode") == "realtime" else None
     out["latency_policy"] = _policy(run_dir)
     return out
+
+
+def rejected_by_receiver(run_dir: Path) -> dict[str, dict[str, int]]:
+    """{station: {reason: frames}} of every receiving app that summarised its OBU in its participant log.
+
+    The apps count what they refuse (av_app.obu: forged, untrusted, expired, replayed, unsecured,
+    malformed...) and print the tally in the JSON summary line at their end; the master only reads it.
+    A receiver that refused nothing is listed with {}: it was there and everything it heard passed.
+    """
+    out: dict[str, dict[str, int]] = {}
+    for path in sorted(Path(run_dir).glob("participant-*.log")):
+        summary = _last_summary(path)
+        if summary is None:
+            continue
+        station = str(summary.get("station") or path.stem[len("participant-"):])
+        rejected = summary["obu"].get("rejected") or {}
+        out[station] = {str(k): int(v) for k, v in sorted(rejected.items())}
+    return out
+
+
+def _last_summary(path: Path) -> dict[str, Any] | None:
+    """The last line of a participant's log that is a JSON object with an `obu` table (None without one)."""
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return None
+    for line in reversed(lines):
+        line = line.strip()
+        if not line.startswith("{"):
+            continue
+        try:
+            item = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(item, dict) and isinstance(item.get("obu"), dict):
+            return item
+    return None
 
 
 def _aoi(events: list[dict[str, Any]], t_end: float) -> dict[str, Any]:

@@ -4,7 +4,8 @@ The core (`[scenario]`, `[time]`, `[fmus.NAME]`, `connections`, `[record]`)
 is read by master.scenario. Each other table belongs to the module that runs
 it: `[serial.NAME]` to the serial bridge, `[world]` to the world layout,
 `[can]` to the CAN bridge, `[v2x]` to the radio, `[bridge]` and
-`[participants.NAME]` to the participants, `[pki]` to master.pki_section. The loader calls the reader of
+`[participants.NAME]` to the participants, `[pki]` to master.pki_section, `[[events]]` to
+master.scenario_events. The loader calls the reader of
 each section present in the file, so adding a section is one line here and
 one reader in its module, not another branch in the loader.
 
@@ -77,6 +78,7 @@ SECTIONS: tuple[Section, ...] = (
     Section("v2x", ("v2x",), "master.radio_bridge:read_section",
             requires=(("bridge", "apps transmit and receive over the bus"),)),
     Section("pki", ("pki",), "master.pki_section:read_section"),
+    Section("events", ("events",), "master.scenario_events:read_section"),  # after the tables events act on
 )
 
 

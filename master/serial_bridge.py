@@ -331,6 +331,28 @@ class SerialBridge:
                 event["dropped"] = f"{type(exc).__name__}: {exc}"
         self._log(event)
 
+    def inject(self, data: bytes, to: str, t: float) -> int:
+        """Bytes on the line as if it carried them (scenario events): to the FMU's rx at this communication
+        point, or to the connected client now; logged like the real traffic. Returns the bytes delivered."""
+        if to == "fmu":
+            with self._cond:
+                self._inbox += data
+                self._last_rx_wall = time.monotonic() - self.spec.collect_gap  # complete already: no wait
+            self._log({"t": t, "event": "inject", "to": "fmu", "n": len(data)})
+            return len(data)
+        with self._cond:
+            conn = self._conn
+        if conn is None:
+            self._log({"t": t, "event": "inject", "to": "client", "n": 0, "why": "no client"})
+            return 0
+        try:
+            conn.sendall(data)
+        except OSError as exc:
+            self._log({"t": t, "event": "inject", "to": "client", "n": 0, "why": str(exc)})
+            return 0
+        self._log({"t": t, "event": "inject", "to": "client", "n": len(data)})
+        return len(data)
+
     def close(self) -> dict[str, Any]:
         self._stop.set()
         if self._server is not None:

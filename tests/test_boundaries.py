@@ -53,6 +53,8 @@ RULES: dict[str, tuple[frozenset[str] | None, str]] = {
     "fmus": (frozenset({"fmus"}),
              "fmus/ imports only its own package (and bridges.<name> beside its bundled fmus._bundled.<name>)"),
     "evaluation": (None, "evaluation/ may import everything"),
+    "attacker": (frozenset({"attacker", "bridges"}),
+                 "attacker/ imports only bridges of the project (a participant like the apps)"),
 }
 BUNDLED_RULE = "a bridges module bundled into an FMU (fmus._bundled.<name>) imports only the standard library"
 BUNDLED_PACKAGE = "fmus._bundled"  # exists only inside a built FMU (fmus/builder.py)
