@@ -50,7 +50,7 @@ def _cmd_validate(args) -> int:
 
     worst = 0
     for path in args.files:
-        sc = load_scenario_or_report(path)
+        sc = load_scenario_or_report(path, args.set)
         if sc is None:
             worst = 2
             continue
@@ -64,7 +64,7 @@ def _cmd_run(args) -> int:
     from master.scenario import load_scenario_or_report
     from master.summary import format_summary
 
-    sc = load_scenario_or_report(args.file)
+    sc = load_scenario_or_report(args.file, args.set)
     if sc is None:
         return 2
     overrides = {k: v for k, v in (("mode", args.mode), ("ordering", args.ordering),
@@ -126,10 +126,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser("validate", help="check scenario files without running them")
     v.add_argument("files", nargs="+")
+    add_set_argument(v)
     v.set_defaults(func=_cmd_validate)
 
     r = sub.add_parser("run", help="run a scenario into a run folder")
     r.add_argument("file")
+    add_set_argument(r)
     r.add_argument("--out", help="run folder (default: runs/<scenario>-<timestamp>); never overwritten")
     r.add_argument("--mode", choices=("lockstep", "realtime"), help="override time.mode")
     r.add_argument("--ordering", choices=("jacobi", "gauss-seidel"), help="override time.ordering")
@@ -146,6 +148,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_contributed_commands(sub)
     return p
+
+
+def add_set_argument(p: argparse.ArgumentParser) -> None:
+    """`--set KEY=VALUE` (repeatable): a scenario value overridden (master.overrides has the rules)."""
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a value of the scenario, e.g. --set fmus.ev.parameters.v0=20.1 "
+                        "--set v2x.channel.technology=cv2x --set 'world.cameras[rsu_cam].z=10.0' (repeatable). "
+                        "VALUE is a TOML literal (20.1, true, \"a b\", [1, 2], { k = 1 }); a bare word that is "
+                        "none (cv2x, tcp/127.0.0.1:7447) is that string. Checked like the file itself")
 
 
 def add_contributed_commands(sub: argparse._SubParsersAction, entry_points=None) -> None:

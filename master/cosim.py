@@ -29,7 +29,10 @@ from master.can_bridge import CanBridge
 from master.collision import CollisionHook
 from master.conditions import COLLISION, StopConditions
 from master.fmu_runtime import FmuInstance
+from master.fmu_variables import element_names
 from master.hooks import Hook, Member, Outcome, RunContext, open_order, overrides
+from master.initialization import initialize
+from master.input_file import InputFiles
 from master.metrics import METRICS, run_metrics, write_metrics
 from master.pacing import Pacer
 from master.participants import ParticipantBridge, open_run_bus
@@ -120,6 +123,7 @@ class CoSimulation:
         # did the vehicles touch? (every scenario with a world of two or more vehicles)
         self.collision = CollisionHook.for_scenario(scenario, COLLISION in scenario.time.stop_on)
         self.stop_conditions = StopConditions.for_scenario(scenario)  # [time] stop_on over signals
+        self.inputs = InputFiles(scenario)  # inputs driven from CSV files ([fmus.NAME] input)
         self.extra_hooks: list[Hook] = []  # observers added by tools and tests, after the scenario's own
 
     def hooks(self) -> list[Hook]:
@@ -138,7 +142,12 @@ class CoSimulation:
             hooks.append(TraceRecorder())
         if self.world is not None and sc.record_camera:
             hooks.append(CameraArchive(self.world))
-        hooks += [h for h in (self.participants, self.serial, self.can) if h]
+        if sc.events:  # before the apps' tick and the gateways: an event acts on the step of its time
+            from master.scenario_events import ScenarioEvents, Targets
+
+            hooks.append(ScenarioEvents(sc.events, Targets(self.participants or None, self.radio, self.can or None,
+                                                           self.serial or None)))
+        hooks += [h for h in (self.inputs, self.participants, self.serial, self.can) if h]
         if self.world is not None:
             if self.participants:  # the world's sensors reach the apps over the bus
                 hooks.append(StreamsHook(self.world, sc.participants.bridge.camera_encoding))
@@ -190,10 +199,11 @@ class CoSimulation:
                 groups.setdefault(fmu.access_key(var), []).append(var)
             for key, names in groups.items():
                 vrs = [fmu.variables[n].valueReference for n in names]
-                member.outputs.append((fmu.accessor(key, vrs, setter=False), next_slot, next_slot + len(names)))
+                width = sum(fmu.size(n) for n in names)  # an FMI 3 array takes one slot per element
+                member.outputs.append((fmu.accessor(key, vrs, setter=False), next_slot, next_slot + width))
                 for n in names:
                     slot_of[(name, n)] = next_slot
-                    next_slot += 1
+                    next_slot += fmu.size(n)
 
         for name, member in members.items():
             fmu = member.fmu
@@ -201,13 +211,17 @@ class CoSimulation:
             for conn in (c for c in sc.connections if c.dst == name):
                 vrs, slots = groups_in.setdefault(fmu.access_key(conn.dst_var), ([], []))
                 vrs.append(fmu.variables[conn.dst_var].valueReference)
-                slots.append(slot_of[(conn.src, conn.src_var)])
+                first = slot_of[(conn.src, conn.src_var)]
+                slots.extend(range(first, first + fmu.size(conn.dst_var)))  # sizes match (scenario check)
             for key, (vrs, slots) in groups_in.items():
                 member.inputs.append((fmu.accessor(key, vrs, setter=True), slots))
 
         values: list[Any] = [0.0] * next_slot
-        record_slots = [slot_of[r] for r in sc.record]
-        columns = [f"{i}.{v}" for i, v in sc.record]
+        record_slots, columns = [], []
+        for i, v in sc.record:  # an array: one column per element, name[1], name[2], ...
+            names = element_names(f"{i}.{v}", members[i].fmu.shape(v))
+            record_slots += range(slot_of[(i, v)], slot_of[(i, v)] + len(names))
+            columns += names
         return values, record_slots, columns
 
     # -- metadata -------------------------------------------------------------
@@ -267,6 +281,7 @@ class CoSimulation:
             recorder = RunRecorder(self.run_dir, columns)
             recorder.write_resolved(sc.resolved())
             recorder.write_metadata(meta)
+            meta["initialization"] = initialize(members, values, sc, self.inputs)  # consistent t = start row
             for m in members.values():
                 m.fmu.exit_initialization()
             ctx = RunContext(sc, self.run_dir, members, self.quiet)

@@ -23,7 +23,10 @@ Scenario file::
     sync_every = 10               # tick at every 10th step
     latencies = { detect = 0.05, encode = 0.002 }   # fixed policy: simulated seconds per stage
     command = ["{python}", "-m", "rsu_app"]          # optional: started by the master ({python}: this
-                                                     # Python, {name}: the participant, {run}: the run folder)
+                                                     # Python, {name}: the participant, {run}: the run folder,
+                                                     # {can.port}: any value of the scenario by its dotted key)
+    args = ["--hardware", "cpu-i7"]                  # appended to command: what a variant or a sweep point
+                                                     # changes (`v2i run ... --set participants.rsu1.args=[...]`)
     env = { RSU_CAMERA = "cam1" }
     enabled = true                # false: as if the table were not there (a scenario that extends
                                   # another one switches an app off this way)
@@ -62,14 +65,15 @@ from bridges.timesync.errors import TimeSyncError
 from bridges.timesync.messages import NAME
 from bridges.v2x import EPOCH
 from master.hooks import Hook, Outcome, RunContext
-from master.tables import Table
+from master.tables import Table, did_you_mean
 
 log = logging.getLogger(__name__)
 
 TRANSPORTS = ("zenoh", "udp", "memory")
 BRIDGE_KEYS = ("transport", "prefix", "listen", "connect", "group", "port", "options", "latency",
                "join_timeout_s", "heartbeat_s", "heartbeat_timeout_s", "on_refused", "camera_encoding")
-PARTICIPANT_KEYS = ("role", "required", "timeout_s", "sync_every", "latencies", "command", "env", "enabled")
+PARTICIPANT_KEYS = ("role", "required", "timeout_s", "sync_every", "latencies", "command", "args", "env", "enabled")
+_VALUE_REF = re.compile(r"\{([A-Za-z_][A-Za-z0-9_\-]*(?:\.[A-Za-z0-9_\-]+)+)\}")  # {can.port}: a scenario value
 ON_REFUSED = ("wait", "fail")
 _PREFIX = re.compile(r"^[A-Za-z0-9_.\-]+(/[A-Za-z0-9_.\-]+)*$")
 MAP_PERIOD_S = 1.0  # realtime: republish the mapping this often (wall seconds)
@@ -120,6 +124,7 @@ class ParticipantSpec:
     sync_every: int = 1
     latencies: dict[str, float] = field(default_factory=dict)
     command: list[str] | None = None
+    args: list[str] = field(default_factory=list)  # appended to command
     env: dict[str, str] = field(default_factory=dict)
     enabled: bool = True
 
@@ -131,6 +136,8 @@ class ParticipantSpec:
                "sync_every": self.sync_every, "latencies": dict(self.latencies)}
         if self.command:
             out["command"] = list(self.command)
+        if self.args:
+            out["args"] = list(self.args)
         if self.env:
             out["env"] = dict(self.env)
         return {k: v for k, v in out.items() if v is not None}
@@ -150,18 +157,19 @@ class ParticipantsSpec:
 # -- validation ----------------------------------------------------------------------
 def read_section(tables: dict[str, Any], context) -> ParticipantsSpec:
     """The reader of the `[bridge]` and `[participants.NAME]` section (master.sections)."""
-    return parse_participants(tables.get("bridge"), tables.get("participants"), context.base_dir, context.problem)
+    return parse_participants(tables.get("bridge"), tables.get("participants"), context.base_dir, context.problem,
+                              context.raw)
 
 
 def parse_participants(bridge: Any, participants: Any, base_dir: Path,
-                       problem: Callable[[str, str], None]) -> ParticipantsSpec:
+                       problem: Callable[[str, str], None], raw: dict[str, Any] | None = None) -> ParticipantsSpec:
     """Validate `[bridge]` and `[participants.NAME]`; every problem goes to `problem(key, message)`."""
     b = _parse_bridge(Table(bridge if bridge is not None else {}, "bridge", problem))
     members = Table(participants if participants is not None else {}, "participants", problem,
                     expected="a table of [participants.NAME] tables")
     specs: dict[str, ParticipantSpec] = {}
     for name in members.raw:
-        spec = _parse_participant(members, name)
+        spec = _parse_participant(members, name, raw or {})
         if spec is None or not spec.enabled:  # enabled = false: not started, not waited for (a variant
             continue                          # of a scenario without this app, e.g. ima_no_cps.toml)
         if spec.command and b.transport == "memory":
@@ -202,7 +210,7 @@ def _parse_bridge(t: Table) -> BridgeSpec:
     return spec
 
 
-def _parse_participant(members: Table, name: str) -> ParticipantSpec | None:
+def _parse_participant(members: Table, name: str, raw: dict[str, Any]) -> ParticipantSpec | None:
     if not NAME.match(name):
         members.problem(name, "participant names must be letters, digits, _ or - (at most 64; they are key chunks)")
         return None
@@ -224,12 +232,45 @@ def _parse_participant(members: Table, name: str) -> ParticipantSpec | None:
             spec.latencies[stage] = seconds
     spec.command = t.strings("command", None, nonempty=True,
                              expected="a non-empty list of strings (\"{python}\" is this Python)")
+    spec.args = t.strings("args", [], expected="a list of strings (appended to command)")
+    if spec.args and not spec.command:
+        t.problem("args", "appended to command: this participant has no command")
+    spec.command = _with_values(t, "command", spec.command, raw)
+    spec.args = _with_values(t, "args", spec.args, raw) or []
     env = t.get("env", {})
     if not isinstance(env, dict) or not all(isinstance(v, str) for v in env.values()):
         t.problem("env", f"expected a table of NAME = \"string\", got {env!r}")
     else:
         spec.env = dict(env)
     return spec
+
+
+def _with_values(t: Table, key: str, words: list[str] | None, raw: dict[str, Any]) -> list[str] | None:
+    """`words` with each {table.key} replaced by that value of the scenario, so an app's flag and the
+    scenario cannot disagree (`"--can-port", "{can.port}"`) and a sweep changes both at once."""
+    if not words:
+        return words
+    out = []
+    for i, word in enumerate(words):
+        try:
+            out.append(_VALUE_REF.sub(lambda m: _scenario_value(raw, m.group(1)), word))
+        except LookupError as exc:
+            t.problem(f"{key}[{i}]", str(exc))
+            out.append(word)
+    return out
+
+
+def _scenario_value(raw: dict[str, Any], dotted: str) -> str:
+    """The scenario's value at `dotted` as command-line text; LookupError saying why there is none."""
+    node: Any = raw
+    for part in dotted.split("."):
+        if not isinstance(node, dict) or part not in node:
+            hint = did_you_mean(part, node) if isinstance(node, dict) else None
+            raise LookupError(f"{{{dotted}}} names no value of the scenario" + (f"; {hint}" if hint else ""))
+        node = node[part]
+    if isinstance(node, (dict, list)):
+        raise LookupError(f"{{{dotted}}} is a {'table' if isinstance(node, dict) else 'list'}, not a single value")
+    return str(node).lower() if isinstance(node, bool) else str(node)
 
 
 # -- the bridge in the master loop ----------------------------------------------------------
@@ -266,6 +307,7 @@ class ParticipantBridge(Hook):
         self.spec, self.mode, self.rtf, self.quiet = spec, mode, rtf, quiet
         self.world = dict(world) if world is not None else {"origin": GeoOrigin().to_dict()}
         self.serial_urls: dict[str, str] = {}  # [serial.NAME] -> its pyserial URL, once the ports are open
+        self.j2735_edition: str | None = None  # [v2x] j2735_edition, given to started apps
         self.prefix = run_prefix(spec, run_name) if spec is not None else None
         self.bus = None
         self.coordinator: Coordinator | None = None
@@ -290,6 +332,7 @@ class ParticipantBridge(Hook):
         t0, run_dir = ctx.t0, ctx.run_dir
         self._step = ctx.h
         self.serial_urls = dict(ctx.serial_urls)
+        self.j2735_edition = getattr(getattr(ctx.scenario, "v2x", None), "j2735_edition", None)
         # the Unix time simulation time t0 stands for: apps date their J2735/1609.2 messages from it
         self.world[EPOCH] = time.time() - t0
         self.bus = ctx.bus
@@ -391,13 +434,15 @@ class ParticipantBridge(Hook):
                     "PYTHONUNBUFFERED": "1", lifeline.ENV: str(os.getpid())})
         for name, url in self.serial_urls.items():  # the run's serial ports, e.g. V2I_SERIAL_TLC
             env[serial_env(name)] = _reachable(url)
+        if self.j2735_edition:  # the apps' default_codec() speaks the scenario's J2735 edition
+            env["V2I_J2735_EDITION"] = self.j2735_edition
         env.update(p.env)
         return env
 
     def _start(self, p: ParticipantSpec, run_dir: Path) -> None:
         words = {"{python}": sys.executable, "{name}": p.name, "{run}": str(run_dir.resolve())}
         argv = []
-        for c in p.command:
+        for c in [*p.command, *p.args]:
             for placeholder, value in words.items():
                 c = c.replace(placeholder, value)
             argv.append(c)

@@ -12,13 +12,15 @@ import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 from master.errors import ScenarioError
-from master.fmu_variables import check_value, family, unsupported_reason
+from master.overrides import Override, OverrideError, annotate, apply_overrides, parse_overrides
+from master.fmu_variables import check_setting, describe_type, family, shape, unsupported_reason
+from master.input_file import read_input
 from master.sections import SectionContext, read_sections, section_keys
 from master.conditions import COLLISION, ConditionError, compile_condition, signals_of
-from master.tables import Table, suggest
+from master.tables import Table, deep_merge, suggest
 
 MODES = ("lockstep", "realtime")
 ORDERINGS = ("jacobi", "gauss-seidel")
@@ -29,7 +31,7 @@ _TOP_KEYS = _CORE_KEYS + section_keys()
 _MOVED = {k: f"in TOML a key after a [table] header belongs to that table: move `{k} = ...` above the first [table]"
           for k in _TOP_KEYS}
 _TIME_KEYS = ("start", "stop", "step", "mode", "ordering", "rtf", "overrun", "stop_on")
-_INSTANCE_KEYS = ("fmu", "parameters", "start", "step_multiple")
+_INSTANCE_KEYS = ("fmu", "parameters", "start", "step_multiple", "input")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _CONNECTION = re.compile(r"^\s*([^.\s]+)\.(\S+)\s*->\s*([^.\s]+)\.(\S+)\s*$")
 
@@ -59,6 +61,7 @@ class Instance:
     parameters: dict[str, Any] = field(default_factory=dict)
     start: dict[str, Any] = field(default_factory=dict)
     step_multiple: int = 1
+    input: Any = None  # master.input_file.InputTable: inputs driven from a CSV file
 
     @property
     def variables(self) -> dict[str, Any]:
@@ -93,18 +96,28 @@ class Scenario:
     can: Any = None  # master.can_bridge.CanConfig when the file has [can]
     v2x: Any = None  # master.radio_bridge.V2xSpec when the file has [v2x]
     pki: Any = None  # master.pki_section.PkiSpec when the file has [pki]
+    events: Any = None  # [master.scenario_events.Event] when the file has [[events]]
+
+    @property
+    def overrides(self) -> list[str]:
+        """The `--set KEY=VALUE` laid over the file (already applied; the resolved scenario lists them)."""
+        meta = self.raw.get("scenario")
+        items = meta.get("overrides", []) if isinstance(meta, dict) else []
+        return [str(o) for o in items] if isinstance(items, list) else []
 
     def resolved(self) -> dict[str, Any]:
         """The scenario with defaults filled in and FMU paths resolved, for the run folder."""
         t = self.time
         return {
-            "scenario": {"name": self.name, "description": self.description, "source": str(self.path)},
+            "scenario": {"name": self.name, "description": self.description, "source": str(self.path),
+                         **({"overrides": list(self.overrides)} if self.overrides else {})},
             "time": {"start": t.start, "stop": t.stop, "step": t.step, "mode": t.mode,
                      "ordering": t.ordering, "rtf": t.rtf, "overrun": t.overrun,
                      **({"stop_on": list(t.stop_on)} if t.stop_on else {})},
             "fmus": {
                 i.name: {"fmu": str(i.path), "step_multiple": i.step_multiple,
-                         "parameters": dict(i.parameters), "start": dict(i.start)}
+                         "parameters": dict(i.parameters), "start": dict(i.start),
+                         **({"input": str(i.input.path)} if i.input is not None else {})}
                 for i in self.instances.values()
             },
             "connections": [str(c) for c in self.connections],
@@ -115,8 +128,20 @@ class Scenario:
             **({"can": self.can.resolved()} if self.can is not None else {}),
             **({"v2x": self.v2x.resolved()} if self.v2x is not None else {}),
             **({"pki": self.pki.resolved()} if self.pki is not None else {}),
+            **({"events": [e.describe() for e in self.events]} if self.events else {}),
             **(self.participants.resolved() if self.participants is not None else {}),
         }
+
+
+def _no_co_simulation(file_name: str, md) -> str:
+    """Why an FMU without a co-simulation interface cannot run, naming the interfaces it has."""
+    if getattr(md, "scheduledExecution", None) is not None:
+        also = " (and model exchange)" if md.modelExchange is not None else ""
+        return (f"{file_name} is an FMI 3 scheduled-execution FMU{also}: its model partitions are activated by "
+                "clocks the importer schedules, which this master does not support; it runs co-simulation FMUs")
+    if md.modelExchange is not None:
+        return f"{file_name} has no co-simulation interface (model exchange only); the master runs co-simulation FMUs"
+    return f"{file_name} declares no co-simulation interface; the master runs co-simulation FMUs"
 
 
 def fmu_search_dir() -> Path:
@@ -149,21 +174,50 @@ def resolve_fmu(spec: str, base_dir: Path) -> Path:
     raise FileNotFoundError(f"no FMU named {spec!r}: not a file, not a project FMU (project FMUs: {known})")
 
 
-def load_scenario_or_report(path: str | os.PathLike) -> Scenario | None:
+def load_scenario_or_report(path: str | os.PathLike, overrides: Sequence[str | Override] = ()) -> Scenario | None:
     """For the CLI commands: the scenario, or None after printing why it could not be loaded
     (the caller exits 2)."""
     import sys
 
     try:
-        return load_scenario(path)
+        return load_scenario(path, overrides)
     except ScenarioError as exc:
         print(exc, file=sys.stderr)
         return None
 
 
-def load_scenario(path: str | os.PathLike) -> Scenario:
-    """Parse and validate a scenario file; raises ScenarioError listing every problem."""
+def load_scenario(path: str | os.PathLike, overrides: Sequence[str | Override] = ()) -> Scenario:
+    """Parse and validate a scenario file; raises ScenarioError listing every problem.
+
+    `overrides` (`KEY=VALUE` texts or master.overrides.Override) are laid over the file after its
+    `extends` (master.overrides); the merged scenario is then validated as a whole, and a problem
+    about an overridden key names the `--set` it came from."""
     path = Path(path)
+    raw = read_raw(path)
+    if not overrides:
+        return _Validator(path, raw).validate()
+    try:
+        texts = parse_overrides(o for o in overrides if not isinstance(o, Override))
+        parsed = [o if isinstance(o, Override) else texts.pop(0) for o in overrides]
+        raw, where = apply_overrides(raw, parsed)
+    except OverrideError as exc:
+        raise ScenarioError(path, exc.problems) from None
+    meta = raw.setdefault("scenario", {})
+    if isinstance(meta, dict):  # the resolved scenario lists them (after those of a resolved file run again)
+        before = meta.get("overrides")
+        meta["overrides"] = (before if isinstance(before, list) else []) + [o.text for o in parsed]
+    try:
+        return _Validator(path, raw).validate()
+    except ScenarioError as exc:
+        raise ScenarioError(path, annotate(exc.problems, where)) from None
+
+
+def read_raw(path: Path) -> dict[str, Any]:
+    """The file's tables with those of the scenario it `extends`, unvalidated (ScenarioError when unreadable)."""
+    if path.suffix.lower() == ".ssp":  # an SSP package: its system as these tables (master.ssp_import)
+        from master.ssp_import import read_ssp
+
+        return read_ssp(path)
     try:
         text = path.read_text()
     except OSError as exc:
@@ -172,8 +226,7 @@ def load_scenario(path: str | os.PathLike) -> Scenario:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(path, [f"not valid TOML: {exc}"]) from None
-    raw = with_base(path, raw)
-    return _Validator(path, raw).validate()
+    return with_base(path, raw)
 
 
 def with_base(path: Path, raw: dict[str, Any], chain: tuple[Path, ...] = ()) -> dict[str, Any]:
@@ -202,19 +255,9 @@ def with_base(path: Path, raw: dict[str, Any], chain: tuple[Path, ...] = ()) -> 
         raise ScenarioError(path, [f"scenario.extends: cannot read {base}: {exc.strerror or exc}"]) from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(path, [f"scenario.extends: {base} is not valid TOML: {exc}"]) from None
-    merged = _merge(with_base(base, base_raw, chain), raw)
+    merged = deep_merge(with_base(base, base_raw, chain), raw)
     merged["scenario"] = {k: v for k, v in merged["scenario"].items() if k != "extends"}
     return merged
-
-
-def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
-    out = dict(base)
-    for key, value in over.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _merge(out[key], value)
-        else:
-            out[key] = value
-    return out
 
 
 class _Validator:
@@ -231,7 +274,8 @@ class _Validator:
         top = Table(raw, "", self.problem)
         top.unknown_keys(_TOP_KEYS)
         meta = top.sub("scenario")
-        meta.unknown_keys(("name", "description", "source"), _MOVED)
+        meta.unknown_keys(("name", "description", "source", "overrides"), _MOVED)  # source, overrides: as written
+                                                                                  # by resolved(), informative
         name = meta.get("name", self.path.stem)
         description = meta.get("description", "")
         for key, value in (("name", name), ("description", description)):
@@ -313,7 +357,7 @@ class _Validator:
                 self.problem(f"{key}.fmu", f"{exc}")
                 continue
             if md.coSimulation is None:
-                self.problem(f"{key}.fmu", f"{fmu_path.name} has no co-simulation interface (model exchange only)")
+                self.problem(f"{key}.fmu", _no_co_simulation(fmu_path.name, md))
                 continue
             platforms = supported_platforms(str(fmu_path))
             if fmpy_platform not in platforms and f"{fmpy_platform_tuple}" not in platforms:
@@ -331,6 +375,8 @@ class _Validator:
             inst = Instance(name, fmu, fmu_path, md, step_multiple=multiple)
             inst.parameters = self.values(inst, spec.sub("parameters"), parameters=True)
             inst.start = self.values(inst, spec.sub("start"), parameters=False)
+            inst.input = read_input(spec, inst.variables, fmu_path.name, md.fmiVersion.startswith("3"),
+                                    self.path.parent, time.start)
             result[name] = inst
         return result
 
@@ -359,7 +405,7 @@ class _Validator:
             if var.variability == "constant":
                 self.problem(key, f"{var_name!r} is a constant and cannot be set")
                 continue
-            reason = check_value(var.type, value)
+            reason = check_setting(var, value, inst.model_description.fmiVersion.startswith("3"))
             if reason:
                 self.problem(key, reason)
                 continue
@@ -370,7 +416,9 @@ class _Validator:
         if not isinstance(items, list):
             self.problem("connections", f"expected a list of \"a.out -> b.in\" strings, got {type(items).__name__}")
             return []
-        result, targets = [], {}
+        result = []
+        targets = {(name, column): f"the input file {inst.input.path.name}"  # an input has one driver
+                   for name, inst in instances.items() if inst.input is not None for column in inst.input.names}
         for i, text in enumerate(items):
             key = f"connections[{i}]"
             match = _CONNECTION.match(text) if isinstance(text, str) else None
@@ -385,6 +433,10 @@ class _Validator:
             if family(src.type) != family(dst.type):
                 self.problem(key, f"type mismatch: {conn.src}.{conn.src_var} is {src.type}, "
                                   f"{conn.dst}.{conn.dst_var} is {dst.type}")
+                continue
+            if shape(src) != shape(dst):
+                self.problem(key, f"size mismatch: {conn.src}.{conn.src_var} is {describe_type(src)}, "
+                                  f"{conn.dst}.{conn.dst_var} is {describe_type(dst)}")
                 continue
             target = (conn.dst, conn.dst_var)
             if target in targets:

@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 
 # `v2i <command>` invocations cheap enough to run in the test suite (a few seconds each)
-CHEAP = {"validate", "info", "j2735", "pki", "snapshot", "run"}
+CHEAP = {"validate", "info", "j2735", "pki", "snapshot", "run", "export-ssp"}
 CONTROL = {"|", "||", "&&", ";", "&"}
 REDIRECT = {">", ">>", "<"}
 
@@ -119,6 +119,8 @@ def is_cheap(argv: list[str]) -> bool:
         return False
     if argv[0] == "run" and "realtime" in argv:  # paced to the wall clock: seconds of real time
         return False
+    if argv[0] == "run" and any("ima_rsu_box" in a for a in argv):  # needs the emulated box running beside it
+        return False                                                 # (tests/test_rsu_box_case_study.py runs both)
     return True
 
 
