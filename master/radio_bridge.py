@@ -48,6 +48,7 @@ from typing import Any, Callable
 from bridges.j2735.editions import EDITIONS
 from bridges.v2x import AIR_ARRIVAL, FRAME, TX_KEY, rx_key, stamp_ns, stamp_s
 from master import rsu_link
+from master.rsu_link import Delivery  # the air and the real link deliver alike
 from master.hooks import Hook, Outcome, RunContext
 from master.tables import Table, did_you_mean, is_number
 
@@ -162,16 +163,6 @@ class _Pending:
     about: dict = field(compare=False, default_factory=dict)
 
 
-@dataclass
-class Delivery:
-    receiver: str
-    sender: str
-    seq: int
-    t_tx: float
-    arrival: float
-    payload: bytes
-    stamps: dict
-    about: dict = field(default_factory=dict)  # the frame's extra event fields (Air.transmit)
 
 
 def _with(event: dict, about: dict | None) -> dict:

@@ -137,7 +137,9 @@ def parse_link(t: Table, stations: Iterable[str], technology: str) -> RsuLinkSpe
 
 # -- the core: records out, forwards in, deliveries at their times (no sockets) ------------------------------
 @dataclass
-class LinkDelivery:
+class Delivery:
+    """A frame due at a receiver at `arrival`, from the simulated air (master.radio_bridge.Air) or this link."""
+
     receiver: str
     sender: str
     seq: int
@@ -246,9 +248,9 @@ class RsuLink:
                         "reason": "not_sent", "detail": f"{reason}: {detail}"}, about))
 
     # -- in --------------------------------------------------------------------------------------------------
-    def due(self, t_next: float) -> list[LinkDelivery]:
+    def due(self, t_next: float) -> list[Delivery]:
         """The forwards due by t_next, in arrival order (lockstep: after waiting as the module says)."""
-        foreign: list[LinkDelivery] = []
+        foreign: list[Delivery] = []
         self._drain(t_next, foreign)
         if self.lockstep:
             while True:
@@ -275,7 +277,7 @@ class RsuLink:
                             "seq": o.seq, "t_tx": o.t_tx, "latency_s": o.arrival - o.t_tx, "via": "rsu",
                             "wall_delay_s": round(delay, 6)}, o.about))
             self._settle(o.frame, "delivered")
-            out.append(LinkDelivery(self.spec.obu_station, o.sender, o.seq, o.t_tx, o.arrival, o.payload, o.stamps,
+            out.append(Delivery(self.spec.obu_station, o.sender, o.seq, o.t_tx, o.arrival, o.payload, o.stamps,
                                     o.about))
         self._t_floor = t_next
         return sorted(out + foreign, key=lambda d: d.arrival)
@@ -333,7 +335,7 @@ class RsuLink:
         payload = found.envelope if found.envelope is not None else oer.unsecured(found.frame)
         self.log({"event": "v2x_foreign", "t": arrival, "from": source, "to": self.spec.obu_station,
                   "bytes": len(data), "psid": found.psid})
-        foreign.append(LinkDelivery(self.spec.obu_station, f"obu:{source}", -1, arrival, arrival, payload, {}))
+        foreign.append(Delivery(self.spec.obu_station, f"obu:{source}", -1, arrival, arrival, payload, {}))
 
     def _expire(self, now: float) -> None:
         for frame in list(self._out):

@@ -25,16 +25,23 @@ pytest.importorskip("zenoh")
 pytest.importorskip("pybullet")
 
 
+def copy_study(folder: Path, scenarios=("ima_world.toml", "ima_case_study.toml", "ima_no_cps.toml"),
+               apps=("rsu.toml", "av.toml")) -> Path:
+    """folder/scenarios: copies of shipped scenario files and app configs, laid out as in the checkout (no keys:
+    the first run makes them from the scenario's [pki] table)."""
+    root = folder / "scenarios"
+    (root / "apps").mkdir(parents=True)
+    for name in scenarios:
+        shutil.copy(ROOT / "scenarios" / name, root / name)
+    for name in apps:
+        shutil.copy(ROOT / "scenarios" / "apps" / name, root / "apps" / name)
+    return root
+
+
 @pytest.fixture(scope="module")
 def study(tmp_path_factory, fmu_dir):
     """A copy of the shipped case study with its own keys."""
-    root = tmp_path_factory.mktemp("case-study") / "scenarios"
-    (root / "apps").mkdir(parents=True)
-    for name in ("ima_world.toml", "ima_case_study.toml", "ima_no_cps.toml"):
-        shutil.copy(ROOT / "scenarios" / name, root / name)
-    for name in ("rsu.toml", "av.toml"):
-        shutil.copy(ROOT / "scenarios" / "apps" / name, root / "apps" / name)
-    return root  # no keys: the first run makes them from the scenario's [pki] table
+    return copy_study(tmp_path_factory.mktemp("case-study"))
 
 
 def run_case(study: Path, base: str, policy: str, out: Path) -> dict:

@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import csv
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from test_case_study import copy_study
 from test_rsu_app_support import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -27,13 +27,8 @@ pytest.importorskip("pybullet")
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory, fmu_dir):
-    root = tmp_path_factory.mktemp("faults") / "scenarios"
-    (root / "apps").mkdir(parents=True)
-    for name in ("ima_world.toml", "ima_case_study.toml", "ima_rsu_crash.toml"):
-        shutil.copy(ROOT / "scenarios" / name, root / name)
-    for name in ("rsu.toml", "av.toml"):
-        shutil.copy(ROOT / "scenarios" / "apps" / name, root / "apps" / name)
-    return root
+    return copy_study(tmp_path_factory.mktemp("faults"),
+                      ("ima_world.toml", "ima_case_study.toml", "ima_rsu_crash.toml"))
 
 
 def run(study: Path, base: str, name: str, extra: str = "", cav: str = "") -> dict:
