@@ -1,7 +1,7 @@
 """`kill -9` of the master mid-run: what it recorded stays on disk, and the apps it started do not outlive it.
 
-The recorder flushes every row as it writes it, so a killed run loses at most the step in progress (README,
-"Run folder"). The started participants die with the master (bridges.timesync.lifeline: Linux's parent-death
+The recorder flushes its rows at least every FLUSH_S (0.05 s) of wall time, so a killed run loses at most the rows
+of its last 0.05 s and never leaves a torn row in the middle (README, "The run folder"). The started participants die with the master (bridges.timesync.lifeline: Linux's parent-death
 signal) instead of waiting out the master's silence (`master_timeout_s`, 80 s with this scenario's heartbeat
 timeout of 20 s).
 """
@@ -124,3 +124,22 @@ def test_the_lifeline_is_armed_only_for_a_child_of_the_named_master():
     assert lifeline.arm({}) is False  # not started by a master (a box on the network, a user's shell)
     assert lifeline.arm({lifeline.ENV: "not-a-pid"}) is False
     assert lifeline.arm({lifeline.ENV: str(os.getppid() + 100000)}) is False  # the parent is someone else
+
+
+def test_rows_reach_the_disk_within_the_flush_interval(tmp_path):
+    """What a kill can lose, on a fake clock: rows written less than FLUSH_S ago, never older ones."""
+    from master.recorder import FLUSH_S, TIMESERIES, RunRecorder
+
+    now = [100.0]
+    rec = RunRecorder(tmp_path, ["a"], clock=lambda: now[0])
+    on_disk = lambda: (tmp_path / TIMESERIES).read_text().count("\n") - 1  # noqa: E731
+    rec.row(0.0, [1])
+    assert on_disk() == 1  # the first row at once
+    for k in range(1, 5):
+        now[0] += FLUSH_S / 10
+        rec.row(k * 0.01, [k])
+    assert on_disk() == 1  # younger than FLUSH_S: may still be in the buffer
+    now[0] += FLUSH_S
+    rec.row(0.05, [5])
+    assert on_disk() == 6  # the interval passed: everything so far is out
+    rec.close()
