@@ -46,7 +46,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any, Callable
 
 from bridges.j2735.editions import EDITIONS
-from bridges.v2x import AIR_ARRIVAL, FRAME, TX_KEY, rx_key, stamp_ns, stamp_s
+from bridges.v2x import AIR_ARRIVAL, FRAME, TX_KEY, rx_key, stamp_ns, stamp_s, tx_key
 from master import rsu_link
 from master.rsu_link import Delivery  # the air and the real link deliver alike
 from master.hooks import Hook, Outcome, RunContext
@@ -294,6 +294,18 @@ class Air:
         return len(self._heap)
 
 
+@dataclass
+class _Injected:
+    """A frame a scenario event puts on the air (the fields of a bus message the hook reads)."""
+
+    key: str
+    t_sim: float
+    sender: str
+    seq: int
+    payload: bytes
+    stamps: dict = field(default_factory=dict)
+
+
 class RadioBridge(Hook):
     """The air in the master's loop: takes frames from `v2x/tx/*` on the bus, delivers to `v2x/rx/<name>`.
 
@@ -332,6 +344,7 @@ class RadioBridge(Hook):
         self.link: rsu_link.RsuLink | None = None  # mode = "rsu", once open
         self._sockets: rsu_link.LinkSockets | None = None
         self._stamp_time: Callable[[float], float] = lambda t: t
+        self._injected = 0
 
     def open(self, ctx: RunContext) -> dict[str, Any]:
         self.bus, self.log = ctx.bus, ctx.events
@@ -376,6 +389,14 @@ class RadioBridge(Hook):
         return (float(x), float(y), 0.0)
 
     def _on_tx(self, msg) -> None:
+        with self._lock:
+            self._inbox.append(msg)
+
+    def inject(self, station: str, payload: bytes, t: float) -> None:
+        """A frame on the air as if `station` had sent it at t (scenario events): handed over here, in the
+        master's thread, so it goes on the air in this step whatever the bus's delivery thread is doing."""
+        self._injected += 1
+        msg = _Injected(tx_key(station), t, f"event:{station}", self._injected, payload)
         with self._lock:
             self._inbox.append(msg)
 

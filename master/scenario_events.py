@@ -424,13 +424,11 @@ class ScenarioEvents(Hook):
         return {}
 
     def _do_inject_v2x(self, e: Event, t: float) -> dict[str, Any]:
-        from bridges.v2x import tx_key
-
-        bus = self.ctx.bus
-        if bus is None:
-            raise RuntimeError("the scenario has no bus ([bridge])")
+        radio = self.targets.radio
+        if radio is None:
+            raise RuntimeError("the scenario has no V2X air ([v2x])")
         for _ in range(e.args["count"]):
-            bus.publish(tx_key(e.args["station"]), e.args["payload"], t)
+            radio.inject(e.args["station"], e.args["payload"], t)
         return {"bytes": len(e.args["payload"])}
 
     def _do_inject_can(self, e: Event, t: float) -> dict[str, Any]:
