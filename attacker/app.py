@@ -27,7 +27,8 @@ from pathlib import Path
 from typing import Any
 
 from bridges.geo import GeoOrigin
-from bridges.timesync.errors import JoinTimeout, MasterLost, Refused, TimeSyncError
+from bridges.timesync.errors import TimeSyncError
+from bridges.timesync.exits import EXIT_CONFIG, EXIT_ERROR, EXIT_OK, SESSION_ERRORS, session_end
 from bridges.timesync.participant import Participant, bus_from_env
 from bridges.v2x import EPOCH, rx_key, tx_key
 
@@ -38,7 +39,6 @@ from attacker.credentials import CredentialError, rogue_station, signed_by, stol
 
 log = logging.getLogger("attacker")
 
-EXIT_OK, EXIT_ERROR, EXIT_CONFIG, EXIT_REFUSED, EXIT_NO_MASTER, EXIT_MASTER_LOST = 0, 1, 2, 3, 4, 5
 
 
 class Terminated(Exception):
@@ -114,15 +114,9 @@ class AttackerApp:
                 self._realtime()
             self.ended = self.part.ended.status if self.part.ended else None
             self.exit_reason = f"the run ended ({self.ended})"
-        except Refused as exc:
+        except SESSION_ERRORS as exc:
             print(f"attacker: {exc}", file=sys.stderr)
-            code, self.exit_reason = EXIT_REFUSED, f"refused: {exc.reason}"
-        except JoinTimeout as exc:
-            print(f"attacker: {exc}", file=sys.stderr)
-            code, self.exit_reason = EXIT_NO_MASTER, "no welcome from the master"
-        except MasterLost as exc:
-            print(f"attacker: {exc}", file=sys.stderr)
-            code, self.exit_reason = EXIT_MASTER_LOST, str(exc)
+            code, self.exit_reason = session_end(exc)
         except (Terminated, KeyboardInterrupt):
             self.exit_reason = "terminated by signal"
             if self.part is not None and self.part.welcome is not None and self.part.ended is None:

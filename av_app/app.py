@@ -37,6 +37,8 @@ from bridges.sensor_stream import GNSS_KEY, LIDAR_KEY, SensorStreamError, decode
 from bridges.security import Verifier, load_certificate
 from bridges.security.oer import SecurityFormatError
 from bridges.timesync.errors import JoinTimeout, MasterLost, Refused, TimeSyncError
+from bridges.timesync.exits import (EXIT_CONFIG, EXIT_ERROR, EXIT_MASTER_LOST, EXIT_NO_MASTER, EXIT_OK,
+                                    EXIT_REFUSED)
 from bridges.timesync.participant import Participant, bus_from_env
 from bridges.v2x import EPOCH, rx_key, trace_key
 
@@ -49,7 +51,6 @@ from av_app.timing import StageClock
 log = logging.getLogger("av_app")
 
 _ORDER = {"gnss": 1, "lidar": 2, "v2x": 3}  # statuses are 0: fed first at each time
-EXIT_OK, EXIT_ERROR, EXIT_CONFIG, EXIT_REFUSED, EXIT_NO_MASTER, EXIT_MASTER_LOST = 0, 1, 2, 3, 4, 5
 
 
 class Due:

@@ -35,7 +35,8 @@ import numpy as np
 
 from bridges.geo import GeoOrigin
 from bridges.security import PSID_SPAT_MAP, PSID_SURROGATE_BSM
-from bridges.timesync.errors import JoinTimeout, MasterLost, Refused, TimeSyncError
+from bridges.timesync.errors import TimeSyncError
+from bridges.timesync.exits import EXIT_CONFIG, EXIT_ERROR, EXIT_OK, SESSION_ERRORS, session_end
 from bridges.timesync.participant import Participant, bus_from_env
 from bridges.v2x import EPOCH, trace_key, tx_key
 from rsu_app.bsm_stage import BsmStage
@@ -52,7 +53,6 @@ from rsu_app.timing import LatencyModel
 
 log = logging.getLogger("rsu_app")
 
-EXIT_OK, EXIT_ERROR, EXIT_CONFIG, EXIT_REFUSED, EXIT_NO_MASTER, EXIT_MASTER_LOST = 0, 1, 2, 3, 4, 5
 DEFAULT_SIGNAL_GROUPS = [2, 4, 6, 8]
 
 
@@ -199,15 +199,9 @@ class RsuApp:
                 self._realtime()
             self.ended = self.part.ended.status if self.part.ended else None
             self.exit_reason = f"the run ended ({self.ended})"
-        except Refused as exc:
+        except SESSION_ERRORS as exc:
             print(f"rsu_app: {exc}", file=sys.stderr)
-            code, self.exit_reason = EXIT_REFUSED, f"refused: {exc.reason}"
-        except JoinTimeout as exc:
-            print(f"rsu_app: {exc}", file=sys.stderr)
-            code, self.exit_reason = EXIT_NO_MASTER, "no welcome from the master"
-        except MasterLost as exc:
-            print(f"rsu_app: {exc}", file=sys.stderr)
-            code, self.exit_reason = EXIT_MASTER_LOST, str(exc)
+            code, self.exit_reason = session_end(exc)
         except (Terminated, KeyboardInterrupt):
             self.exit_reason = "terminated by signal"
             if self.part is not None and self.part.welcome is not None and self.part.ended is None:

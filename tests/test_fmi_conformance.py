@@ -19,10 +19,8 @@ Every expected value below is computed by hand in the test's comments.
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -32,28 +30,16 @@ from master.cli import main as cli_main
 from master.cosim import CoSimulation
 from master.errors import ScenarioError
 from master.scenario import load_scenario
+from test_third_party_fmu import c_fmu_builder
 
-FMU_SOURCES = Path(__file__).resolve().parent / "third_party_fmu"
 H = 0.1
 TIMES = [round(H * n, 10) for n in range(11)]  # 0.0 .. 1.0
-
-
-def _build_helper():
-    spec = importlib.util.spec_from_file_location("third_party_fmu_build", FMU_SOURCES / "build.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up while it loads
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture(scope="session")
 def fmus(tmp_path_factory) -> dict[str, Path]:
     """{model identifier: .fmu}: Conformance3, Clocked3 and Integrator (FMI 2), compiled once."""
-    build = _build_helper()
-    if sys.platform == "win32":
-        pytest.skip("the C test FMUs are built with gcc for Linux/macOS only")
-    if build.compiler() is None:
-        pytest.skip("gcc not found: cannot compile the C test FMUs in tests/third_party_fmu/")
+    build = c_fmu_builder()
     out = tmp_path_factory.mktemp("conformance_fmus")
     built = build.build_conformance(out)
     built["Integrator"] = build.build_fmu(2, out)

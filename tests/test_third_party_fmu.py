@@ -51,22 +51,23 @@ B_Y_JACOBI = [0.0, 0.0, 0.02, 0.06, 0.12, 0.20, 0.30, 0.42, 0.56, 0.72, 0.90]
 B_Y_GAUSS_SEIDEL = [0.0, 0.02, 0.06, 0.12, 0.20, 0.30, 0.42, 0.56, 0.72, 0.90, 1.10]
 
 
-def _build_helper():
+def c_fmu_builder():
+    """tests/third_party_fmu/build.py as a module, or a skip with the reason the C test FMUs cannot be built."""
     spec = importlib.util.spec_from_file_location("third_party_fmu_build", FMU_SOURCES / "build.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up while it loads
-    spec.loader.exec_module(module)
-    return module
+    build = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = build  # its dataclasses look their module up while it loads
+    spec.loader.exec_module(build)
+    if sys.platform == "win32":
+        pytest.skip("the C test FMUs are built with gcc for Linux/macOS only")
+    if build.compiler() is None:
+        pytest.skip("gcc not found: cannot compile the C test FMUs in tests/third_party_fmu/")
+    return build
 
 
 @pytest.fixture(scope="session")
 def third_party_fmus(tmp_path_factory) -> dict[int, Path]:
     """{2: Integrator.fmu, 3: Integrator3.fmu}, compiled once per session."""
-    build = _build_helper()
-    if sys.platform == "win32":
-        pytest.skip("the C test FMUs are built with gcc for Linux/macOS only")
-    if build.compiler() is None:
-        pytest.skip("gcc not found: cannot compile the C test FMUs in tests/third_party_fmu/")
+    build = c_fmu_builder()
     return build.build_all(tmp_path_factory.mktemp("third_party_fmus"))
 
 
