@@ -11,7 +11,7 @@ Scenario file::
     port = 47000
     options = {}                  # further transport options, passed through
     latency = "fixed"             # lockstep latency policy: "fixed" or "measured"
-    join_timeout_s = 10.0         # wall seconds to wait for the required participants
+    join_timeout_s = 10.0         # wall seconds to wait for the required participants (and optional ones it started)
     heartbeat_s = 0.5             # participant and master heartbeat period
     heartbeat_timeout_s = 3.0     # silence after which a participant counts as lost
     on_refused = "wait"           # a refused join (wrong version...): "wait" for a good one, or "fail"
@@ -348,7 +348,8 @@ class ParticipantBridge(Hook):
         for p in self.spec.participants.values():
             if p.command:
                 self._start(p, Path(run_dir))
-        self.coordinator.wait_for_participants(b.join_timeout_s)
+        started = [p.name for p in self.spec.participants.values() if p.command and not p.required]
+        self.coordinator.wait_for_participants(b.join_timeout_s, optional=started)
         return self.report()
 
     def before_step(self, k: int, t: float) -> None:

@@ -12,7 +12,7 @@ import pytest
 
 from bridges.timesync.errors import JoinTimeout, MasterLost, Refused
 from bridges.timesync.exits import EXIT_MASTER_LOST, EXIT_NO_MASTER, EXIT_REFUSED, session_end
-from test_rsu_app_support import free_port
+from test_rsu_app_support import free_port, make_pki
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -32,7 +32,9 @@ def test_each_session_error_has_its_code_and_reason():
 ])
 def test_an_app_with_no_master_exits_4_saying_so(app, args, tmp_path):
     pytest.importorskip("zenoh")
-    argv = [sys.executable, "-m", app, *args, "--bus", "zenoh", "--prefix", f"test/exit-{uuid.uuid4().hex[:8]}",
+    keys = make_pki(tmp_path / "keys", {"rsu": "0x7f,0x82", "cav": "0x20"})  # a fresh clone has none
+    stolen = ["--stolen-dir", str(tmp_path / "stolen")] if app == "attacker" else []
+    argv = [sys.executable, "-m", app, *args, "--pki-dir", str(keys), *stolen, "--bus", "zenoh", "--prefix", f"test/exit-{uuid.uuid4().hex[:8]}",
             "--connect", f"tcp/127.0.0.1:{free_port()}", "--join-timeout", "1.5"]
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert proc.returncode == EXIT_NO_MASTER, proc.stdout + proc.stderr

@@ -477,3 +477,27 @@ def test_a_flood_of_strangers_is_counted_in_bounded_memory(buses):
     assert sum(errors.values()) == 300 and len(errors) <= 101
     assert errors["other reasons (too many distinct ones to list)"] == 200
     c.close()
+
+
+def test_an_optional_participant_the_master_started_is_waited_for_at_the_start(buses):
+    """Optional apps the master started are on their way: the run waits for them (up to the join timeout) so a
+    lockstep one starts at the first tick, not mid-run; without being named, an optional one is not waited for."""
+    c = coordinator(buses("master"), Expected("late", required=False))
+    app = App(buses("late"), "late")
+    threading.Timer(0.4, app.start).start()
+    t0 = time.perf_counter()
+    c.wait_for_participants(5, optional=["late"])
+    assert 0.35 <= time.perf_counter() - t0 < 5 and c.members["late"].join is not None
+    c.tick(0, 0.0)
+    assert app.seen[:1] == [(0, 0.0)]  # it saw the first tick
+    c.end("completed")
+    c.close()
+    app.join(5)
+    assert app.error is None
+
+    c2 = coordinator(buses("master2"), Expected("absent", required=False))
+    t0 = time.perf_counter()
+    c2.wait_for_participants(0.3, optional=["absent"])  # never joins: the run starts without it, no error
+    assert 0.3 <= time.perf_counter() - t0 < 2
+    c2.wait_for_participants(5)  # not named: not waited for
+    c2.close()

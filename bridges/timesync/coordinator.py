@@ -18,7 +18,7 @@ import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 from bridges.timesync import messages as m
 from bridges.timesync.errors import (JoinTimeout, ParticipantLost, ParticipantTimeout, ProtocolError, Refused,
@@ -98,14 +98,18 @@ class Coordinator:
         self._beat = threading.Thread(target=self._beats, name="timesync-beat", daemon=True)
         self._beat.start()
 
-    def wait_for_participants(self, timeout_s: float) -> None:
-        """Block until every required participant joined; JoinTimeout names the missing ones."""
+    def wait_for_participants(self, timeout_s: float, optional: Iterable[str] = ()) -> None:
+        """Block until every required participant joined (JoinTimeout names the missing ones) and the optional
+        ones named in `optional` joined or the timeout passed: apps the master started are on their way, and
+        one that joins a lockstep run already ticking starts at a tick of its own, not at the run's first."""
         deadline = time.monotonic() + timeout_s
+        optional = [n for n in optional if n in self.members]
         with self._cond:
             while True:
                 self._check_heartbeats(time.monotonic())
                 missing = [n for n, s in self.members.items() if s.spec.required and s.join is None]
-                if not missing:
+                late = [n for n in optional if self.members[n].join is None]
+                if not missing and not late:
                     return
                 left = deadline - time.monotonic()
                 if left <= 0:
@@ -116,6 +120,8 @@ class Coordinator:
                     self.poll()
                 finally:
                     self._cond.acquire()
+        if not missing:
+            return  # only optional ones are late: the run starts without them
         refusals = "".join(f"; '{r['name']}' was refused: {r['reason']}" for r in self.refused)
         raise JoinTimeout(missing, timeout_s, refusals)
 
