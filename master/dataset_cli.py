@@ -40,8 +40,9 @@ def add_parser(sub) -> None:
     d.add_argument("--out", required=True, help="output folder (must be empty unless --force)")
     d.add_argument("--frames", type=int, default=100, help="number of frames (default 100)")
     d.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same dataset")
-    d.add_argument("--variant", choices=("train", "heldout"), default="train",
-                   help="heldout draws colours, sizes and camera poses that train never uses")
+    d.add_argument("--variant", choices=("train", "heldout", "wide"), default="train",
+                   help="heldout draws colours, sizes and camera poses that train never uses; wide (the shipped "
+                        "detector's training set) brackets heldout's ranges on every side without touching them")
     d.add_argument("--camera", help="scenario camera whose pose is jittered (default: the first)")
     d.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     d.add_argument("--no-occlusion", action="store_true",

@@ -218,3 +218,24 @@ def test_cli(tmp_path, capsys, write_scenario):
     """)
     assert main(["dataset", "--scenario", str(no_world), "--out", str(tmp_path / "e"), "--quiet"]) == 2
     assert "no [world]" in capsys.readouterr().err
+
+
+def test_wide_brackets_heldout_on_every_side_and_never_touches_it(layout):
+    """The shipped detector's training variant: every held-out band lies inside the spread `wide`
+    draws from, and no `wide` band overlaps a held-out one (the held-out set stays novel)."""
+    from master.world.dataset import WIDE
+
+    for key in ("car_length", "car_width", "car_height", "ev_length", "ev_width", "ev_height", "car_hues",
+                "camera_dz", "camera_dfov"):
+        wide, held = getattr(WIDE, key), getattr(HELDOUT, key)
+        assert min(lo for lo, _ in wide) < min(lo for lo, _ in held), key
+        assert max(hi for _, hi in wide) > max(hi for _, hi in held), key
+        for lo, hi in wide:
+            assert not any(lo < h_hi and h_lo < hi for h_lo, h_hi in held), (key, (lo, hi))
+    assert not any(lo < 0.06 and 0.02 < hi for lo, hi in WIDE.ev_hues)  # held-out ev hues 0.02..0.06
+    assert any(lo >= 0.06 for lo, _ in WIDE.ev_hues) and any(hi <= 0.02 for _, hi in WIDE.ev_hues)
+    samples = [draw_sample(i, 3, "wide", layout, layout.cameras[0]) for i in range(40)]
+    evs = [v.spec for s in samples for v in s.vehicles if v.spec.kind == "emergency"]
+    assert evs and all(any(lo <= e.length <= hi for lo, hi in WIDE.ev_length) for e in evs)
+    ambient = [s.lighting.ambient for s in samples]
+    assert min(ambient) < 0.45 or max(ambient) > 0.8  # the wider light draw, not the standard one

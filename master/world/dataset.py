@@ -9,7 +9,13 @@ with any number of jobs.
 
 The `heldout` variant draws vehicle colours, sizes and camera heights/fields of
 view from ranges the `train` variant never uses, so an evaluation on it says
-whether a detector generalises beyond what it was trained on.
+whether a detector generalises beyond what it was trained on. The `wide`
+variant is the training distribution of the shipped detector: the `train`
+bands plus bands beyond the held-out ones on every side (smaller and larger
+vehicles, higher and lower cameras, narrower and wider fields of view, more
+hues, harsher and softer light), so that the held-out values lie inside the
+spread the detector saw, yet no value it trained on is a held-out value
+(`WIDE`'s bands never overlap `HELDOUT`'s; tests/test_world_dataset.py).
 
 Output folder (COCO-style, documented in the README):
 
@@ -41,7 +47,7 @@ from master.world.layout import CameraSpec, VehicleSpec, WorldLayout
 
 CATEGORIES = [{"id": 1, "name": "car"}, {"id": 2, "name": "emergency"}]
 CATEGORY_ID = {c["name"]: c["id"] for c in CATEGORIES}
-VARIANTS = ("train", "heldout")
+VARIANTS = ("train", "heldout", "wide")
 MIN_VISIBLE_PIXELS = 40
 MAX_OCCLUSION = 0.9
 GENERATOR = "v2i-cosim dataset 1"
@@ -64,6 +70,7 @@ class VariantRanges:
     camera_dfov: list[Range]  # field-of-view change (deg)
     yaw_jitter: float  # deg, +-
     p_grey: float  # share of white/silver/black cars
+    light: str = "standard"  # which lighting draw (`sample_lighting`): "standard" or "wide"
 
 
 TRAIN = VariantRanges(
@@ -76,7 +83,15 @@ HELDOUT = VariantRanges(
     ev_length=[(5.4, 6.0), (7.0, 7.8)], ev_width=[(2.1, 2.2), (2.45, 2.55)], ev_height=[(2.8, 3.1)],
     car_hues=[(0.12, 0.2), (0.46, 0.54)], ev_hues=[(0.02, 0.06)],
     camera_dz=[(1.5, 3.0), (-1.6, -1.0)], camera_dfov=[(-20.0, -10.0), (8.0, 14.0)], yaw_jitter=12.0, p_grey=0.0)
-RANGES = {"train": TRAIN, "heldout": HELDOUT}
+WIDE = VariantRanges(
+    car_length=[(3.0, 3.4), (3.8, 5.0), (5.6, 6.2)], car_width=[(1.45, 1.55), (1.65, 1.95), (2.05, 2.15)],
+    car_height=[(1.15, 1.25), (1.35, 1.75), (2.0, 2.2)],
+    ev_length=[(4.8, 5.4), (6.0, 7.0), (7.8, 8.6)], ev_width=[(2.0, 2.1), (2.2, 2.45), (2.55, 2.7)],
+    ev_height=[(2.1, 2.4), (2.4, 2.8), (3.1, 3.4)],
+    car_hues=[(0.0, 0.12), (0.2, 0.46), (0.54, 1.0)], ev_hues=[(0.94, 1.0), (0.0, 0.02), (0.06, 0.1)],
+    camera_dz=[(-2.2, -1.6), (-1.0, 1.5), (3.0, 4.0)], camera_dfov=[(-26.0, -20.0), (-10.0, 8.0), (14.0, 20.0)],
+    yaw_jitter=16.0, p_grey=0.3, light="wide")
+RANGES = {"train": TRAIN, "heldout": HELDOUT, "wide": WIDE}
 
 
 class DatasetError(Exception):
@@ -146,13 +161,20 @@ def sample_camera(rng: np.random.Generator, base: CameraSpec, layout: WorldLayou
                    roll=float(rng.uniform(-1.5, 1.5)), fov_deg=fov)
 
 
-def sample_lighting(rng: np.random.Generator) -> Lighting:
-    az, el = rng.uniform(0, 2 * math.pi), math.radians(rng.uniform(20, 80))
-    warm = rng.uniform(0.0, 0.15)
+LIGHT = {  # elevation (deg), warmth, ambient, diffuse, specular, P(shadow)
+    "standard": ((20, 80), (0.0, 0.15), (0.45, 0.8), (0.3, 0.65), (0.0, 0.3), 0.25),
+    "wide": ((10, 85), (0.0, 0.25), (0.35, 0.9), (0.2, 0.75), (0.0, 0.4), 0.35),
+}
+
+
+def sample_lighting(rng: np.random.Generator, kind: str = "standard") -> Lighting:
+    elevation, warmth, ambient, diffuse, specular, p_shadow = LIGHT[kind]
+    az, el = rng.uniform(0, 2 * math.pi), math.radians(rng.uniform(*elevation))
+    warm = rng.uniform(*warmth)
     return Lighting(direction=(math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)),
-                    color=(1.0, 1.0 - warm / 2, 1.0 - warm), ambient=float(rng.uniform(0.45, 0.8)),
-                    diffuse=float(rng.uniform(0.3, 0.65)), specular=float(rng.uniform(0.0, 0.3)),
-                    shadow=bool(rng.random() < 0.25))
+                    color=(1.0, 1.0 - warm / 2, 1.0 - warm), ambient=float(rng.uniform(*ambient)),
+                    diffuse=float(rng.uniform(*diffuse)), specular=float(rng.uniform(*specular)),
+                    shadow=bool(rng.random() < p_shadow))
 
 
 def _footprint(v: PlacedVehicle) -> np.ndarray:
@@ -227,7 +249,7 @@ def draw_sample(index: int, seed: int, variant: str, layout: WorldLayout, base_c
     rng = np.random.default_rng((seed, VARIANTS.index(variant), index))
     r = RANGES[variant]
     cam_spec = sample_camera(rng, base_camera, layout, r)
-    lighting = sample_lighting(rng)
+    lighting = sample_lighting(rng, r.light)
     cam = Camera(cam_spec, None)
     W, H = cam_spec.width, cam_spec.height
 
