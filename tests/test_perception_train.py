@@ -222,3 +222,54 @@ def test_checkpoint_without_head_kind_loads_as_full_convolutions(tmp_path):
     with torch.inference_mode():
         for a, b in zip(net(x), det.net(x)):
             assert torch.equal(a, b)
+
+
+def test_fine_tuning_starts_from_the_checkpoint_and_keeps_its_shape(data, learnt, tmp_path):
+    out, ckpt = learnt
+    # the arguments for shape are overridden by the checkpoint's; a nearly frozen lr keeps its loss
+    tuned = train(data, None, epochs=1, seed=0, augment=False, lr=1e-7, init=out,
+                  **{**TINY, "width": 16, "input_size": (320, 240)})
+    assert tuned["config"]["width"] == 8 and tuned["config"]["input_size"] == [192, 144]
+    assert tuned["training"]["history"][0]["loss"] < 2 * ckpt["training"]["history"][-1]["loss"]
+    fresh = train(data, None, epochs=1, seed=0, augment=False, lr=1e-7, **TINY)
+    assert tuned["training"]["history"][0]["loss"] < 0.3 * fresh["training"]["history"][0]["loss"]
+    init = tuned["training"]["init"]
+    assert init["dataset_sha256"] == ckpt["training"]["dataset_sha256"] and len(init["state_sha256"]) == 64
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(DetectorError, match="checkpoint"):
+        train(data, None, epochs=1, init=tmp_path / "bad.pt", **TINY)
+
+
+def test_heavily_occluded_vehicles_are_masked_out_of_the_loss(data, tmp_path):
+    from dataclasses import replace
+
+    from rsu_app.perception.train import sample_item
+
+    ds = load_dataset(data)
+    idx = next(i for i, s in enumerate(ds.samples) if s.truths)
+    s = ds.samples[idx]
+    cfg = ModelConfig(width=8, input_size=(192, 144))
+    hidden = replace(s.truths[0], occlusion=0.8)
+    ds.samples[idx] = replace(s, truths=[hidden, *s.truths[1:]])
+    rng = lambda: np.random.default_rng(0)  # noqa: E731
+    cls = cfg.classes.index(hidden.label)
+
+    def peak_and_weight(max_occlusion):
+        x, heat, weight, *_ = sample_item(ds, idx, cfg, rng(), augment=False, max_occlusion=max_occlusion)
+        u0, v0, u1, v1 = (c * 192 / s.width / cfg.stride if k % 2 == 0 else c * 144 / s.height / cfg.stride
+                          for k, c in enumerate(hidden.box))
+        cy, cx = int((v0 + v1) / 2), int((u0 + u1) / 2)
+        return heat[cls, cy, cx], weight[cls, cy, cx]
+
+    assert peak_and_weight(None) == (1.0, 1.0)          # taught as a vehicle
+    assert peak_and_weight(0.9) == (1.0, 1.0)           # 0.8 is below this limit
+    assert peak_and_weight(0.75) == (0.0, 0.0)          # neither vehicle nor background
+    doc = json.loads((data / "annotations.json").read_text())
+    for a in doc["annotations"]:
+        a.pop("occlusion", None)
+    (tmp_path / "images").symlink_to(data / "images")
+    (tmp_path / "annotations.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="no-occlusion"):  # a set rendered without occlusion labels
+        train(tmp_path, None, epochs=1, max_occlusion=0.75, **TINY)
+    with pytest.raises(ValueError, match="max_occlusion"):
+        train(data, None, epochs=1, max_occlusion=1.5, **TINY)

@@ -21,7 +21,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--out", required=True, help="weights file to write (.pt)")
     t.add_argument("--epochs", type=int, default=30)
     t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--threads", type=int, default=2, help="CPU threads for torch (default 2)")
+    t.add_argument("--threads", type=int, default=2,
+                   help="CPU threads for torch (default 2: training owns the machine while it runs)")
     t.add_argument("--batch-size", type=int, default=8)
     t.add_argument("--lr", type=float, default=2e-3)
     t.add_argument("--width", type=int, default=16, help="channels of the first stage (speed/accuracy)")
@@ -31,6 +32,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="output-head blocks: depthwise-separable (default) or full 3x3 convolutions")
     t.add_argument("--crop", help="train on random WxH windows (multiples of 16) of the network input, e.g. 192x144")
     t.add_argument("--onnx", help="also export the trained network to this .onnx file")
+    t.add_argument("--init", help="start from this checkpoint's weights (fine-tune); its width, input size and "
+                                  "heads are kept")
+    t.add_argument("--max-occlusion", type=float,
+                   help="mask vehicles more hidden than this (0..1, from the dataset's occlusion labels) out "
+                        "of the loss")
     t.set_defaults(func=_cmd_train)
 
     e = sub.add_parser("eval-detector", help="AP, recall by distance/occlusion and FPS of a detector on a dataset")
@@ -39,7 +45,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--weights", help="weights (.pt for torch; .onnx or .pt for onnx); default the shipped ones")
     e.add_argument("--background", help="classical: empty-scene image (default DIR/background.png if present, "
                                          "else MOG2 over the frames)")
-    e.add_argument("--threads", type=int, default=None)
+    e.add_argument("--threads", type=int, default=1,
+                   help="CPU threads of the detector (default 1: more oversubscribes a machine whose other "
+                        "cores are busy; benchmarks/perception.py measures 1 and 2)")
     e.add_argument("--score-threshold", type=float, default=0.05,
                    help="lowest score kept (low for AP; recall bins use it too)")
     e.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -68,7 +76,7 @@ def _cmd_train(args) -> int:
     try:
         ckpt = train(args.data, args.out, epochs=args.epochs, seed=args.seed, threads=args.threads,
                      batch_size=args.batch_size, lr=args.lr, width=args.width, crop=crop,
-                     input_size=input_size, heads=args.heads,
+                     input_size=input_size, heads=args.heads, init=args.init, max_occlusion=args.max_occlusion,
                      command=command or f"v2i train-detector --data {args.data} --out {args.out} "
                                         f"--epochs {args.epochs} --seed {args.seed} --threads {args.threads}")
     except (DatasetError, ValueError) as exc:
@@ -109,8 +117,7 @@ def _cmd_eval(args) -> int:
                 raise DetectorError(f"--background {args.background}: not found")
         else:
             opts.update(weights=args.weights, score_threshold=args.score_threshold)
-            if args.threads is not None:
-                opts["threads"] = args.threads
+            opts["threads"] = args.threads
         det = make_detector(args.detector, **opts)
     except (DatasetError, DetectorError) as exc:
         print(f"error: {exc}", file=sys.stderr)

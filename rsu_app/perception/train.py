@@ -5,8 +5,11 @@ seeded numpy generator drives sampling and augmentation, torch runs with
 deterministic algorithms, batches are built in this process.
 Augmentation: scale jitter with random placement (one affine warp),
 horizontal flip, brightness/contrast/per-channel gain jitter. Annotations
-flagged "ignore" are masked out of the heatmap loss: the network is neither
-rewarded nor punished for firing on them.
+flagged "ignore", and with `max_occlusion` those more hidden than that, are
+masked out of the heatmap loss: the network is neither rewarded nor punished
+for firing on them (a vehicle 80 % behind a building is neither a clear
+example of a vehicle nor background). `init` starts from a checkpoint's
+weights (fine-tuning on a wider dataset) instead of random ones.
 """
 from __future__ import annotations
 
@@ -123,9 +126,11 @@ def _crop(rng: np.random.Generator, img: np.ndarray, M: np.ndarray, crop: tuple[
 
 
 def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generator, augment: bool,
-                scale_jitter: float = 0.3, image: np.ndarray | None = None, crop: tuple[int, int] | None = None):
+                scale_jitter: float = 0.3, image: np.ndarray | None = None, crop: tuple[int, int] | None = None,
+                max_occlusion: float | None = None):
     """One training pair: network input (3, H, W) float32 and its targets. `crop` (W, H): train on a
-    random window of that size of the (augmented) network-input image instead of all of it."""
+    random window of that size of the (augmented) network-input image instead of all of it.
+    `max_occlusion`: truths whose label says they are more hidden than this are ignored."""
     s = ds.samples[idx]
     img = s.load() if image is None else image
     out, M = _geometry(rng, img, cfg, scale_jitter, augment)
@@ -147,10 +152,22 @@ def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generato
         cut = (c1 - c0) < 0.5 * (a1 - a0) or (d1 - d0) < 0.5 * (b1 - b0)
         boxes.append((c0, d0, c1, d1))
         labels.append(cls[t.label])
-        ignore.append(t.ignore or cut)
+        hidden = max_occlusion is not None and t.occlusion is not None and t.occlusion > max_occlusion
+        ignore.append(t.ignore or cut or hidden)
     tg = make_targets(np.array(boxes, np.float64).reshape(-1, 4), np.array(labels, np.int64),
                       np.array(ignore, bool), cfg, size=(W, H))
     return (np.ascontiguousarray(x.transpose(2, 0, 1)), *tg)
+
+
+def _state_digest(state: dict) -> str:
+    """sha256 over a state dict's tensors in key order (names the weights a fine-tune started from)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for k in sorted(state):
+        h.update(k.encode())
+        h.update(state[k].detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
 
 
 def focal_loss(pred: torch.Tensor, gt: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
@@ -186,11 +203,22 @@ def loss_fn(outputs, targets) -> tuple[torch.Tensor, dict[str, float]]:
 def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, seed: int = 0, threads: int = 2,
           batch_size: int = 8, lr: float = 2e-3, width: int = 16, input_size: tuple[int, int] = (320, 240),
           augment: bool = True, cache_images: bool = True, crop: tuple[int, int] | None = None,
-          heads: str = "separable", command: str | None = None, log=None) -> dict:
+          heads: str = "separable", command: str | None = None, log=None, init: str | Path | dict | None = None,
+          max_occlusion: float | None = None) -> dict:
     """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict.
-    `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size."""
+    `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size.
+    `init`: a checkpoint to start from (its width, input size and heads are used; the arguments
+    for them are then ignored). `max_occlusion` (0..1): mask truths more hidden than this."""
     if epochs < 1 or batch_size < 1 or threads < 1:
         raise ValueError(f"epochs, batch_size and threads must be >= 1, got {epochs}, {batch_size}, {threads}")
+    if max_occlusion is not None and not 0.0 <= max_occlusion <= 1.0:
+        raise ValueError(f"max_occlusion must be within 0..1, got {max_occlusion}")
+    base = None
+    if init is not None:
+        from rsu_app.perception.torch_backend import load_weights
+
+        base_net, base = load_weights(init)  # DetectorError (a ValueError) names a bad file
+        width, input_size, heads = base_net.cfg.width, base_net.cfg.input_size, base_net.cfg.heads
     if crop is not None:
         crop = (int(crop[0]), int(crop[1]))
         if crop[0] % 16 or crop[1] % 16 or not (0 < crop[0] <= input_size[0] and 0 < crop[1] <= input_size[1]):
@@ -202,12 +230,17 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     unknown = {t.label for s in ds.samples for t in s.truths} - set(ModelConfig().classes)
     if unknown:
         raise ValueError(f"{data}: labels {sorted(unknown)} are not among the model's classes")
+    if max_occlusion is not None and all(t.occlusion is None for s in ds.samples for t in s.truths):
+        raise ValueError(f"{data}: max_occlusion needs occlusion labels, and this dataset has none "
+                         f"(it was rendered with --no-occlusion)")
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
     torch.use_deterministic_algorithms(True)
     rng = np.random.default_rng(seed)
     cfg = ModelConfig(width=width, input_size=tuple(input_size), heads=heads)
     net = CenterNet(cfg)
+    if base is not None:
+        net.load_state_dict(base["state_dict"])
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     steps_per_epoch = math.ceil(len(ds) / batch_size)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=epochs * steps_per_epoch,
@@ -221,7 +254,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
         sums: dict[str, float] = {}
         for b in range(steps_per_epoch):
             items = [sample_item(ds, int(i), cfg, rng, augment, image=None if images is None else images[int(i)],
-                                 crop=crop)
+                                 crop=crop, max_occlusion=max_occlusion)
                      for i in order[b * batch_size:(b + 1) * batch_size]]
             batch = [torch.from_numpy(np.stack(col)) for col in zip(*items)]
             loss, parts = loss_fn(net(batch[0]), batch[1:])
@@ -243,6 +276,11 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
             "seed": seed, "epochs": epochs, "threads": threads, "batch_size": batch_size, "lr": lr,
             "augment": augment, "crop": list(crop) if crop else None, "width": width, "heads": heads,
             "input_size": list(input_size), "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
+            "max_occlusion": max_occlusion,
+            "init": None if base is None else {
+                "command": base.get("training", {}).get("command"),
+                "dataset_sha256": base.get("training", {}).get("dataset_sha256"),
+                "state_sha256": _state_digest(base["state_dict"])},
             "dataset_info": ds.info, "images": len(ds),
             "annotations": sum(len(s.truths) for s in ds.samples),
             "history": history, "seconds": round(time.perf_counter() - t_start, 2),
