@@ -138,3 +138,40 @@ def test_decode_box_nms_drops_a_second_peak_on_the_same_vehicle():
     # boxes that only touch are different vehicles
     heat, size, off = _heat_with_peaks([(0, 10, 10, 0.9, small, small), (0, 10, 14, 0.8, small, small)])
     assert len(decode(heat, size, off, (1.0, 1.0), 4, ("car", "emergency"))) == 2
+
+
+def test_learned_backends_default_to_one_thread_and_refuse_bad_counts():
+    """One thread unless told: the master, renderer and app share 2 cores (benchmarks/perception.py)."""
+    import torch
+
+    from rsu_app.perception.detector import DEFAULT_THREADS
+
+    assert DEFAULT_THREADS == 1
+    torch.set_num_threads(2)
+    det = make_detector("torch")
+    assert det.threads == 1 and torch.get_num_threads() == 1
+    assert make_detector("onnx").threads == 1
+    for backend in ("torch", "onnx"):
+        for bad in (0, -1, 1.5, None):
+            with pytest.raises(DetectorError, match="threads must be an integer >= 1"):
+                make_detector(backend, threads=bad)
+
+
+def test_torch_backend_on_cpu_when_asked_and_auto_without_cuda():
+    import torch
+
+    rgb = np.full((480, 640, 3), 128, np.uint8)
+    cpu = make_detector("torch", device="cpu")
+    assert cpu.device.type == "cpu" and isinstance(cpu.detect(rgb), list)
+    auto = make_detector("torch")
+    assert auto.device.type == ("cuda" if torch.cuda.is_available() else "cpu")
+
+
+@pytest.mark.skipif(not __import__("torch").cuda.is_available(),
+                    reason="no CUDA device on this machine: the torch backend's GPU path cannot run here")
+def test_torch_on_cuda_finds_the_cpu_boxes(rendered):
+    _, rgb, _ = rendered
+    cpu, gpu = make_detector("torch", device="cpu"), make_detector("torch", device="cuda")
+    dc, dg = cpu.detect(rgb), gpu.detect(rgb)
+    assert dc and [d.label for d in dc] == [d.label for d in dg]
+    assert np.allclose([d.box for d in dc], [d.box for d in dg], atol=0.5)

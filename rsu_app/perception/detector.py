@@ -19,6 +19,11 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 LABELS = ("car", "emergency")
+# CPU threads a learned backend uses unless told otherwise. One: on the 2-core machines this project runs
+# on, the master, the renderer and the RSU app share the cores, and a detector spreading over both
+# (torch's own default) stalls on the others' work: 1.5-3 FPS instead of ~40 (benchmarks/perception.py
+# measures both beside a busy core). Ask for more with threads=N where cores are free.
+DEFAULT_THREADS = 1
 
 # the shipped weights (rsu_app/perception/weights/RECIPE.md says how they were made)
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"

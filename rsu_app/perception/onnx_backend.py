@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rsu_app.perception.detector import Detection, DetectorError, check_frame, default_weights
+from rsu_app.perception.detector import DEFAULT_THREADS, Detection, DetectorError, check_frame, default_weights
 from rsu_app.perception.model import ModelConfig, decode, preprocess
 
 OUTPUTS = ("heat", "size", "offset")
@@ -51,7 +51,8 @@ def export_onnx(weights, path: str | Path | None = None, opset: int = 17) -> byt
 class OnnxDetector:
     name = "onnx"
 
-    def __init__(self, weights: str | Path | bytes | None = None, *, threads: int | None = None, score_threshold: float = 0.3,
+    def __init__(self, weights: str | Path | bytes | None = None, *, threads: int = DEFAULT_THREADS,
+                 score_threshold: float = 0.3,
                  top_k: int = 50, providers: list[str] | None = None):
         """`weights`: an .onnx file (or its bytes), or a torch checkpoint (.pt), exported on the fly;
         default the shipped weights/detector.onnx."""
@@ -67,11 +68,11 @@ class OnnxDetector:
         else:
             data = bytes(weights)
         opts = ort.SessionOptions()
-        if threads is not None:
-            if threads < 1:
-                raise DetectorError(f"threads must be >= 1, got {threads}")
-            opts.intra_op_num_threads = threads
-            opts.inter_op_num_threads = 1
+        if not isinstance(threads, int) or threads < 1:
+            raise DetectorError(f"threads must be an integer >= 1, got {threads!r}")
+        opts.intra_op_num_threads = threads
+        opts.inter_op_num_threads = 1
+        self.threads = threads
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         if providers is None:
             avail = ort.get_available_providers()

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rsu_app.perception.detector import Detection, DetectorError, check_frame, default_weights
+from rsu_app.perception.detector import DEFAULT_THREADS, Detection, DetectorError, check_frame, default_weights
 from rsu_app.perception.model import FORMAT, CenterNet, ModelConfig, decode, preprocess
 
 
@@ -33,7 +33,7 @@ def load_weights(weights: str | Path | dict) -> tuple[CenterNet, dict]:
 class TorchDetector:
     name = "torch"
 
-    def __init__(self, weights: str | Path | dict | None = None, *, device: str = "auto", threads: int | None = None,
+    def __init__(self, weights: str | Path | dict | None = None, *, device: str = "auto", threads: int = DEFAULT_THREADS,
                  score_threshold: float = 0.3, top_k: int = 50, random_weights: bool = False,
                  config: ModelConfig | None = None):
         if weights is None and not random_weights:
@@ -44,10 +44,10 @@ class TorchDetector:
             torch.manual_seed(0)
             self.net, self.checkpoint = CenterNet(config or ModelConfig()).eval(), None
         self.cfg = self.net.cfg
-        if threads is not None:
-            if threads < 1:
-                raise DetectorError(f"threads must be >= 1, got {threads}")
-            torch.set_num_threads(threads)
+        if not isinstance(threads, int) or threads < 1:
+            raise DetectorError(f"threads must be an integer >= 1, got {threads!r}")
+        torch.set_num_threads(threads)  # process-wide: torch has no per-module thread count
+        self.threads = threads
         if device == "auto":
             device = "cuda" if torch.cuda.is_available() else "cpu"
         self.device = torch.device(device)
