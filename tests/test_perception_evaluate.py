@@ -92,6 +92,19 @@ def test_recall_by_distance_and_occlusion():
     assert "recall by distance" in r.table()
 
 
+def test_recall_by_distance_per_class():
+    truths = [[_t((0, 0, 10, 10), "emergency", distance=5.0), _t((20, 0, 30, 10), "emergency", distance=45.0),
+               _t((40, 0, 50, 10), distance=5.0), _t((60, 0, 70, 10), distance=45.0)]]
+    # the far emergency vehicle is boxed as a car: found for neither class
+    dets = [[_d((0, 0, 10, 10), 0.9, "emergency"), _d((20, 0, 30, 10), 0.9), _d((40, 0, 50, 10), 0.9),
+             _d((60, 0, 70, 10), 0.9)]]
+    r = evaluate_detections(_ds(truths), dets)
+    rows = {c: {row["bin"]: (row["found"], row["truths"]) for row in bins if row["truths"]}
+            for c, bins in r.recall_by_class_distance.items()}
+    assert rows == {"car": {"0-20": (1, 1), "40-60": (1, 1)}, "emergency": {"0-20": (1, 1), "40-60": (0, 1)}}
+    assert "distance (m), emergency" in r.table()
+
+
 def test_mismatched_lengths():
     with pytest.raises(ValueError, match="1 detection lists for 2 images"):
         evaluate_detections(_ds([[], []]), [[]])

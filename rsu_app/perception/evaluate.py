@@ -7,7 +7,9 @@ sampled at 101 recall points. A detection matched to an ignored truth is
 dropped (neither true nor false positive); ignored truths are never misses.
 "Overall" is the mean over classes that have truths (COCO's mAP).
 Recall by distance/occlusion counts non-ignored truths found at IoU 0.5
-(class-aware) among the detector's outputs at its own score threshold.
+(class-aware) among the detector's outputs at its own score threshold; by
+distance also per class, since the emergency vehicle is the object the case
+study exists for and an overall figure can hide it.
 """
 from __future__ import annotations
 
@@ -92,6 +94,7 @@ class Report:
     ap: dict[str, float]  # AP@0.5:0.95
     recall_by_distance: list[dict] = field(default_factory=list)
     recall_by_occlusion: list[dict] = field(default_factory=list)
+    recall_by_class_distance: dict[str, list[dict]] = field(default_factory=dict)
     fps: float = float("nan")
     ms_per_frame: dict[str, float] = field(default_factory=dict)
 
@@ -117,7 +120,9 @@ class Report:
         for c in [*self.truths, "overall"]:
             n = self.truths.get(c, sum(self.truths.values()))
             lines.append(f"{c:<10} {n:>6} {f(self.ap50[c]):>6} {f(self.ap[c]):>6}")
-        for title, rows in (("distance (m)", self.recall_by_distance), ("occlusion", self.recall_by_occlusion)):
+        for title, rows in (("distance (m)", self.recall_by_distance),
+                            *((f"distance (m), {c}", r) for c, r in self.recall_by_class_distance.items()),
+                            ("occlusion", self.recall_by_occlusion)):
             lines.append(f"recall by {title}:")
             for r in rows:
                 lines.append(f"  {r['bin']:<12} {r['found']:>5}/{r['truths']:<5} {f(r['recall'])}")
@@ -152,7 +157,9 @@ def evaluate_detections(ds: Dataset, detections: list[list[Detection]], detector
     n_truth = {}
     found_dist: list[tuple[float | None, bool]] = []
     found_occ: list[tuple[float | None, bool]] = []
+    by_class: dict[str, list[dict]] = {}
     for c in classes:
+        found_c: list[tuple[float | None, bool]] = []
         tps: dict[float, list[np.ndarray]] = {float(t): [] for t in IOU_THRESHOLDS}
         scs: dict[float, list[np.ndarray]] = {float(t): [] for t in IOU_THRESHOLDS}
         n = 0
@@ -171,8 +178,10 @@ def evaluate_detections(ds: Dataset, detections: list[list[Detection]], detector
                         if not t.ignore:
                             ok = bool(m >= 0 and d[m].score >= operating_threshold)
                             found_dist.append((t.distance, ok))
+                            found_c.append((t.distance, ok))
                             found_occ.append((t.occlusion, ok))
         n_truth[c] = n
+        by_class[c] = _recall_bins(found_c, DISTANCE_BINS)
         aps = [average_precision(np.concatenate(tps[thr]), np.concatenate(scs[thr]), n)
                for thr in map(float, IOU_THRESHOLDS)]
         ap50[c], ap[c] = aps[0], float(np.mean(aps)) if n else float("nan")
@@ -180,7 +189,7 @@ def evaluate_detections(ds: Dataset, detections: list[list[Detection]], detector
     ap50["overall"] = float(np.mean([ap50[c] for c in have])) if have else float("nan")
     ap["overall"] = float(np.mean([ap[c] for c in have])) if have else float("nan")
     return Report(detector, len(ds.samples), n_truth, ap50, ap,
-                  _recall_bins(found_dist, DISTANCE_BINS), _recall_bins(found_occ, OCCLUSION_BINS))
+                  _recall_bins(found_dist, DISTANCE_BINS), _recall_bins(found_occ, OCCLUSION_BINS), by_class)
 
 
 def evaluate(detector: Detector, ds: Dataset, warmup: int = 2) -> Report:
