@@ -271,6 +271,17 @@ def test_filter_is_consistent_with_its_measurement_noise(motion):
         assert 1.5 <= nees <= 2.5, (motion, sigma, nees)
 
 
+def _at_mahalanobis(tr: Tracker, track_id: int, t: float, d2: float, direction) -> np.ndarray:
+    """The point at Mahalanobis^2 d2 from track track_id's position predicted to t, in the given direction,
+    with the innovation covariance S = predicted P + meas_std^2 I that the association uses."""
+    (pred,) = [s for s in tr.predict(t, include_tentative=True) if s.id == track_id]
+    S = pred.cov[:2, :2] + tr.cfg.meas_std ** 2 * np.eye(2)
+    u = np.asarray(direction, float) / np.hypot(*direction)
+    offset = u * math.sqrt(d2 / (u @ np.linalg.solve(S, u)))
+    assert float(offset @ np.linalg.solve(S, offset)) == pytest.approx(d2)
+    return np.array([pred.x, pred.y]) + offset
+
+
 def _static_track(n: int = 20) -> Tracker:
     tr = Tracker()  # the app's defaults: meas_std 0.7 m, gate 13.82 (chi-square 2 dof, 99.9 %)
     for k in range(n):
@@ -287,11 +298,7 @@ def test_gate_at_the_chi_square_quantile(d2, joins):
     tr = _static_track()
     t = 20 * DT
     (pred,) = tr.predict(t)
-    S = pred.cov[:2, :2] + tr.cfg.meas_std ** 2 * np.eye(2)
-    direction = np.array([1.0, 1.0]) / math.sqrt(2)
-    offset = direction * math.sqrt(d2 / (direction @ np.linalg.solve(S, direction)))
-    z = np.array([pred.x, pred.y]) + offset
-    assert float(offset @ np.linalg.solve(S, offset)) == pytest.approx(d2)
+    z = _at_mahalanobis(tr, pred.id, t, d2, direction=(1.0, 1.0))
     tr.update(t, [GroundDetection(*z)])
     (track_id,) = tr.last_assignment
     if joins:
@@ -300,3 +307,68 @@ def test_gate_at_the_chi_square_quantile(d2, joins):
         assert track_id != pred.id and len(tr.tracks) == 2, (d2, tr.last_assignment)
         old = next(x for x in tr.tracks if x.id == pred.id)
         assert old.missed == 1
+
+
+# --- matching cascade: confirmed tracks choose first ------------------------------------------------------
+def _east_track(n: int = 20, speed: float = 10.0) -> tuple[Tracker, int]:
+    """A confirmed track on a target driving east along y = 0 from the origin, detected without noise."""
+    tr = Tracker()  # the app's defaults
+    for k in range(n):
+        tr.update(k * DT, [GroundDetection(speed * k * DT, 0.0)])
+    ((track_id, confirmed),) = [(x.id, x.confirmed) for x in tr.tracks]
+    assert confirmed
+    return tr, track_id
+
+
+@pytest.mark.parametrize("noisy_frames", [2, 5])
+def test_an_outlier_beyond_the_gate_does_not_take_over_a_confirmed_track(noisy_frames):
+    """One detection at Mahalanobis^2 16 (beyond the 13.82 gate, 1 in 3,000 under the noise model) starts a
+    tentative track beside a confirmed one; the next detections sit 1.9 m to the same side (d^2 = 5 from the
+    confirmed track's prediction at the first of them, as a box that shifts for a few frames), then back on
+    the true path. The confirmed track must get every one of them and the outlier's track must never be
+    confirmed. A single assignment over all tracks gave the shifted ones to the young track, which sits on
+    them and pays less d^2 than its larger ln|S| costs: with 2 such frames it was confirmed beside the real
+    one (a duplicate vehicle broadcast), with 5 it took every later detection too and the real track coasted
+    out (an id switch)."""
+    tr, real = _east_track()
+    sideways = (0.0, 1.0)
+    t = 20 * DT
+    tr.update(t, [GroundDetection(*_at_mahalanobis(tr, real, t, 16.0, sideways))])
+    (outlier,) = tr.last_assignment
+    assert outlier != real and len(tr.tracks) == 2  # the gate did its job: a new tentative track
+    (pred,) = tr.predict(21 * DT)  # the confirmed track alone
+    shift = _at_mahalanobis(tr, real, 21 * DT, 5.0, sideways) - (pred.x, pred.y)
+    assert 1.5 < shift[1] < 2.5 and abs(shift[0]) < 1e-9
+    assignments, confirmed = [], set()
+    for k in range(21, 36):
+        t = k * DT
+        z = np.array([10.0 * t, 0.0]) + (shift if k < 21 + noisy_frames else 0.0)
+        confirmed |= {s.id for s in tr.update(t, [GroundDetection(*z)])}
+        assignments += tr.last_assignment
+    assert assignments == [real] * 15, assignments
+    assert confirmed == {real}, confirmed
+    assert [x.id for x in tr.tracks] == [real]  # the outlier's track died in its window
+
+
+def test_new_vehicles_beside_a_confirmed_track_start_and_confirm_their_own_tracks():
+    """The second stage of the cascade: detections a confirmed track did not take go to the tentative ones.
+    A vehicle appears far away (30 m north, driving north) and another in the next lane 4 m beside the
+    confirmed track (outside its gate, overtaking); their detections come first and last in each frame, the
+    confirmed track's in the middle, so a mix-up of detection indices between the stages shows."""
+    tr, real = _east_track()
+    truth = {"far": lambda t: (0.0, 30.0 + 8.0 * (t - 2.0)),
+             "real": lambda t: (10.0 * t, 0.0),
+             "beside": lambda t: (20.0 + 12.0 * (t - 2.0), -4.0)}
+    tr.update(2.0, [GroundDetection(*f(2.0)) for f in truth.values()])
+    far, first, beside = tr.last_assignment
+    assert first == real and len({far, real, beside}) == 3 and len(tr.tracks) == 3
+    for k in range(21, 31):
+        t = k * DT
+        out = tr.update(t, [GroundDetection(*f(t)) for f in truth.values()])
+        assert tr.last_assignment == [far, real, beside], (k, tr.last_assignment)
+        # confirmed at their third hit (confirm_hits = 3), the real track throughout
+        expected = {real} if k < 22 else {far, real, beside}
+        assert {s.id for s in out} == expected, (k, [s.id for s in out])
+    final = {s.id: s for s in tr.predict(3.0)}
+    for name, tid in (("far", far), ("real", real), ("beside", beside)):
+        assert math.hypot(final[tid].x - truth[name](3.0)[0], final[tid].y - truth[name](3.0)[1]) < 0.5
