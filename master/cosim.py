@@ -18,13 +18,14 @@ import time
 from array import array
 from dataclasses import dataclass
 from datetime import datetime, timezone
+from operator import itemgetter
 from pathlib import Path
 from typing import Any
 
 from bridges.timesync.errors import TimeSyncError
 from master import __version__
 from master.errors import DeadlineMissError, SimulationError
-from master.algorithm import algorithm, read_outputs
+from master.algorithm import read_outputs, step_plan
 from master.can_bridge import CanBridge
 from master.collision import CollisionHook
 from master.conditions import COLLISION, StopConditions
@@ -89,10 +90,23 @@ class RecorderHook(Hook):
 
     def __init__(self, recorder: RunRecorder, values: list[Any], slots: list[int]):
         self.recorder, self.values, self.slots = recorder, values, slots
+        self._pick = _picker(slots, len(values))
+        self._row = recorder.row
 
     def after_step(self, k: int, t_next: float) -> None:
-        values = self.values
-        self.recorder.row(t_next, [values[s] for s in self.slots])
+        pick = self._pick
+        self._row(t_next, pick(self.values) if pick is not None else self.values)
+
+
+def _picker(slots: list[int], n_values: int):
+    """values -> the recorded slots' values, in C (a list comprehension over 30 slots cost 0.5 us a step);
+    None when every slot is recorded in slot order (the default [record]): the table as it is."""
+    if list(slots) == list(range(n_values)):
+        return None
+    if len(slots) == 1:
+        only = slots[0]
+        return lambda values: (values[only],)
+    return itemgetter(*slots) if slots else (lambda values: ())
 
 
 class CoSimulation:
@@ -305,26 +319,26 @@ class CoSimulation:
 
             befores = [h.before_step for h in hooks if overrides(h, "before_step")]
             afters = [h.after_step for h in hooks if overrides(h, "after_step")]
-            step = algorithm(t.ordering)
-            ordered = list(members.values())
+            step = step_plan(t.ordering, members.values(), values, t.step)  # members, transfers fixed from here
             progress = self._progress(t)
             n, h, start = t.n_steps, t.step, t.start
             wall0 = time.perf_counter()
             if pacer:
                 pacer.start()
+            clock, timed = time.perf_counter, compute.append
             for k in range(n):
                 lag = pacer.wait(k) if pacer else None
                 t_k = start + k * h
                 for before in befores:
                     before(k, t_k)
-                c0 = time.perf_counter()
-                step(k, t_k, h, ordered, values)
+                c0 = clock()
+                step(k, t_k)
                 t_next = start + (k + 1) * h
                 for after in afters:
                     after(k, t_next)
                 steps_done = k + 1
-                c1 = time.perf_counter()
-                compute.append(c1 - c0)
+                c1 = clock()
+                timed(c1 - c0)
                 if pacer:
                     misses.append(pacer.finished(k, t_k))
                     lags.append(lag)
@@ -333,6 +347,7 @@ class CoSimulation:
                 if ctx.stop_reason is not None:
                     status = "stopped"
                     break
+            recorder.flush()  # the rows kept since the last flush are formatted now: in the loop's time, its cost
         except SimulationError as exc:
             status, error = "failed", str(exc)
             meta.update(failed_instance=exc.instance, failed_time_s=exc.time, failed_call=exc.call)
