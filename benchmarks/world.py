@@ -19,6 +19,12 @@
    its body), `World.pose_vehicle` for each vehicle, and the floor: a bare
    loop of `resetBasePositionAndOrientation` with precomputed arguments.
    Poses change every step. Ratio: time / floor.
+4. The case-study world in the master's loop: `CoSimulation` runs
+   scenarios/ima_world.toml (both VehicleDynamics FMUs, h = 0.01 s, lockstep,
+   no apps) for --sim-seconds with the sensors on (the 640x480 camera and the
+   16 x 1024 lidar, both at 10 Hz), camera only, lidar only, and off; figure:
+   the run's real-time factor (simulated s per wall s, `metadata.json` rtf).
+   Goal (issue 19): >= 1 with the sensors on, on 2 cores.
 
 Every figure is the median over repeats (min too). Results go to JSON
 (default benchmarks/results/world.json). `--quick`: one repeat, fewer frames.
@@ -172,15 +178,45 @@ def bench_posing(n: int, steps: int) -> dict[str, float]:
     return out
 
 
+SENSOR_CASES = (("sensors on", True, True), ("camera only", True, False), ("lidar only", False, True),
+                ("sensors off", False, False))
+
+
+def bench_loop_rtf(camera: bool, lidar: bool, sim_seconds: float) -> float:
+    """Real-time factor of a lockstep run of the case-study world with the given sensors."""
+    import tempfile
+
+    from master.cosim import CoSimulation
+    from master.scenario import load_scenario
+
+    sc = load_scenario(SCENARIO)
+    sc.time.stop = sc.time.start + sim_seconds
+    world = sc.world
+    if not camera:
+        world.cameras = []
+    if not lidar:
+        world.vehicles = {n: dataclasses.replace(v, lidar=None) for n, v in world.vehicles.items()}
+    import json
+
+    with tempfile.TemporaryDirectory() as d:
+        result = CoSimulation(sc, Path(d) / "run", quiet=True).run()
+        if result.status != "completed":
+            raise RuntimeError(f"case-study world run ended {result.status}: {result.error}")
+        meta = json.loads((Path(d) / "run" / "metadata.json").read_text())
+    return float(meta["rtf"]["achieved"])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=3, help="repeats of every case (default 3)")
     ap.add_argument("--json", type=Path, default=RESULTS / "world.json")
+    ap.add_argument("--sim-seconds", type=float, default=4.0,
+                    help="simulated seconds of each case-study run in part 4 (default 4)")
     ap.add_argument("--quick", action="store_true", help="smoke test: 1 repeat, few frames and scans")
     args = ap.parse_args(argv)
     if args.quick:
-        args.repeats = 1
+        args.repeats, args.sim_seconds = 1, min(args.sim_seconds, 0.5)
     frames = {320: 3, 640: 2, 1280: 1} if args.quick else {320: 20, 640: 8, 1280: 4}
     scans = {1024: 3, 2048: 1} if args.quick else {1024: 20, 2048: 6}
     steps = {2: 50, 20: 20, 200: 5} if args.quick else {2: 2000, 20: 500, 200: 100}
@@ -192,6 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     cam_runs = {r: [] for r in RESOLUTIONS}
     lidar_runs = {c: ([], []) for c in LIDARS}
     pose_runs: dict[int, dict[str, list[float]]] = {n: {} for n in FLEETS}
+    loop_runs: dict[str, list[float]] = {case: [] for case, _, _ in SENSOR_CASES}
     t_start = time.perf_counter()
     for r in range(args.repeats):
         for w_, h_ in RESOLUTIONS:
@@ -203,6 +240,8 @@ def main(argv: list[str] | None = None) -> int:
         for n in FLEETS:
             for case, us in bench_posing(n, steps[n]).items():
                 pose_runs[n].setdefault(case, []).append(us)
+        for case, camera, lidar in SENSOR_CASES:
+            loop_runs[case].append(bench_loop_rtf(camera, lidar, args.sim_seconds))
         print(f"  repeat {r + 1}/{args.repeats} done ({time.perf_counter() - t_start:.0f} s)", flush=True)
 
     med = statistics.median
@@ -244,10 +283,23 @@ def main(argv: list[str] | None = None) -> int:
                            "us_per_vehicle_median": m / n, "ratio_to_floor": m / floor})
             print(f"{n:>4} {case:<30} {m:9.1f} {min(vals):9.1f} {m / n:10.2f} {m / floor:7.2f}")
 
+    print()
+    print(f"4. the case-study world in the master's loop (lockstep, {args.sim_seconds:g} s simulated): real-time "
+          f"factor; goal >= 1 with the sensors on")
+    head = f"{'sensors':<14} {'RTF':>7} {'min':>7} {'x sensors off':>14}"
+    print(head + "\n" + "-" * len(head))
+    loop = []
+    off = med(loop_runs["sensors off"])
+    for case, camera, lidar in SENSOR_CASES:
+        m = med(loop_runs[case])
+        loop.append({"case": case, "camera": camera, "lidar": lidar, "rtf": summary(loop_runs[case]),
+                     "ratio_to_sensors_off": m / off, "goal_rtf": 1.0 if camera and lidar else None})
+        print(f"{case:<14} {m:7.2f} {min(loop_runs[case]):7.2f} {m / off:14.3f}")
+
     report = {"benchmark": "world", "machine": info,
               "settings": {"repeats": args.repeats, "quick": args.quick, "scenario": str(SCENARIO),
                            "poses": "case study at t = 4.8 s", "sensor_rate_hz": SENSOR_HZ},
-              "cameras": cameras, "lidars": lidars, "posing": posing,
+              "cameras": cameras, "lidars": lidars, "posing": posing, "loop": loop,
               "wall_s": time.perf_counter() - t_start}
     write_report(args.json, report)
     return 0
