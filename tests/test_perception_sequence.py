@@ -96,16 +96,17 @@ def test_a_biased_box_shows_in_the_position_error(fmu_dir):
 
 
 def test_shipped_detector_tracks_both_vehicles(fmu_dir):
-    """Bounds from the weights shipped when the app chain became the default (the lead sets the final ones
-    once new weights land). Measured: 28 samples, position median 0.224 m, speed median 0.20 m/s, heading
-    median 0.11 deg, coverage 0.923 both, no false track-frames, id switches or class errors."""
+    """The default weights through the app's chain, held to what RECIPE.md and the README claim for the case
+    study (whole sequence: position 0.24 m, speed 0.21 m/s, heading 0.25 deg, medians) with a margin for
+    this 2.5 s stretch. Measured on the stretch: 28 samples, 0.224 m, 0.20 m/s, 0.11 deg, coverage 0.923 for
+    both, no false track-frame, id switch or class error (the wide weights: 0.151 m, 0.236 m/s, 0.35 deg)."""
     rep = evaluate_sequence(SCENARIO, make_detector("torch", threads=1), **STRETCH)
     print(rep.table())
-    assert rep.chain == "app" and rep.samples >= 24, rep.table()
-    assert rep.position_error["median"] <= 0.4, rep.table()
-    assert rep.speed_error["median"] <= 0.4 and rep.heading_error["median"] <= 1.0, rep.table()
-    assert min(rep.coverage.values()) >= 0.85 and rep.id_switches == 0, rep.table()
-    assert rep.false_tracks <= 1 and rep.class_errors == 0, rep.table()
+    assert rep.chain == "app" and rep.samples >= 26, rep.table()
+    assert rep.position_error["median"] <= 0.25, rep.table()
+    assert rep.speed_error["median"] <= 0.3 and rep.heading_error["median"] <= 0.5, rep.table()
+    assert min(rep.coverage.values()) >= 0.9 and rep.id_switches == 0, rep.table()
+    assert rep.false_tracks == 0 and rep.class_errors == 0, rep.table()
 
 
 def test_cli_eval_tracker(fmu_dir, capsys, tmp_path):
