@@ -29,8 +29,8 @@ DEFAULT_THREADS = 1
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 DEFAULT_WEIGHTS = {"torch": WEIGHTS_DIR / "detector.pt", "onnx": WEIGHTS_DIR / "detector.onnx"}
 # The second round's network, trained on the wider `wide` dataset: tighter boxes and a higher held-out AP,
-# but not the default yet: through geo.box_to_ground its emergency-vehicle ground points are worse on the
-# case study (a projection bias the default network's box errors happen to offset; RECIPE.md). Pass
+# but not the default yet: through geo.box_to_ground its emergency-vehicle ground points at 20-60 m are
+# worse on the case study, though its boxes overlap the truth better on average (RECIPE.md). Pass
 # weights=WIDE_WEIGHTS["torch"] (or the onnx file) to use it.
 WIDE_WEIGHTS = {"torch": WEIGHTS_DIR / "detector-wide.pt", "onnx": WEIGHTS_DIR / "detector-wide.onnx"}
 
