@@ -63,8 +63,8 @@ from master.world.world import World
 from rsu_app.config import Settings
 from rsu_app.perception.detector import Detector
 from rsu_app.perception.geo import CameraModel, GeoError, box_to_ground, rough_ground_point
-from rsu_app.perception.tracker import GroundDetection, Tracker, TrackerConfig
-from rsu_app.perception_stage import DetectionZone, PerceptionStage
+from rsu_app.perception.tracker import GroundDetection, Tracker
+from rsu_app.perception_stage import PerceptionStage, tracker_config
 
 CHAINS = ("app", "tracker")
 
@@ -90,13 +90,6 @@ def project_detection(det, camera: CameraModel, tracks=(), radius: float = 3.0) 
     else:
         gx, gy = box_to_ground(det.box, camera, det.label)
     return float(gx), float(gy)
-
-
-def tracker_config(settings: Settings) -> TrackerConfig:
-    """The tracker configuration the RSU app builds from its settings (as rsu_app/app.py does)."""
-    t = settings.tracker
-    return TrackerConfig(accel_std=t.accel_std, meas_std=t.meas_std, gate=t.gate, confirm_hits=t.confirm_hits,
-                         confirm_window=t.confirm_window, max_missed=t.max_missed, motion=t.motion)
 
 
 class FrameDetector:
@@ -200,11 +193,7 @@ class _AppChain:
     """The RSU app's PerceptionStage, built from its Settings as rsu_app/app.py builds it."""
 
     def __init__(self, detector: FrameDetector, settings: Settings, intersection: dict):
-        s = settings
-        zone = DetectionZone(s.perception.max_range_m, intersection, s.perception.on_road_only,
-                             s.perception.road_margin_m)
-        self.stage = PerceptionStage(detector, Tracker(tracker_config(s)), zone, s.detector.score_threshold,
-                                     s.perception.merge_radius_m, s.perception.border_px)
+        self.stage = PerceptionStage.from_settings(detector, settings, intersection)
         self.detector = detector
 
     def step(self, frame, t: float):

@@ -47,7 +47,7 @@ from rsu_app.core import RsuCore
 from rsu_app.envelope import Envelope
 from rsu_app.health import Health, clean, percentiles_ms
 from rsu_app.intersection_map import intersection_geometry
-from rsu_app.perception_stage import DetectionZone, PerceptionStage
+from rsu_app.perception_stage import PerceptionStage
 from rsu_app.spat_stage import MapStage, SpatStage
 from rsu_app.timing import LatencyModel
 
@@ -122,8 +122,6 @@ class RsuApp:
 
     # -- set-up once joined ---------------------------------------------------------------------------
     def _build_core(self, world: dict) -> RsuCore:
-        from rsu_app.perception.tracker import Tracker, TrackerConfig
-
         w, s = self.welcome, self.s
         origin = self.part.origin
         if origin is None:
@@ -139,14 +137,7 @@ class RsuApp:
         self.salt = session_salt(self.station, s.seed, lockstep)
         perception = bsm = spat = map_stage = None
         if self.detector is not None:
-            t = s.tracker
-            tracker = Tracker(TrackerConfig(accel_std=t.accel_std, meas_std=t.meas_std, gate=t.gate,
-                                            confirm_hits=t.confirm_hits, confirm_window=t.confirm_window,
-                                            max_missed=t.max_missed, motion=t.motion))
-            zone = DetectionZone(s.perception.max_range_m, world.get("intersection"), s.perception.on_road_only,
-                                 s.perception.road_margin_m)
-            perception = PerceptionStage(self.detector, tracker, zone, s.detector.score_threshold,
-                                         s.perception.merge_radius_m, s.perception.border_px)
+            perception = PerceptionStage.from_settings(self.detector, s, world.get("intersection"))
             bsm = BsmStage(self.station, origin, epoch, self.salt, self.envelope, self.latency)
         if self.serial_url:
             groups = s.spat.signal_groups or sorted({int(h["signal_group"]) for h in world.get("signals") or ()

@@ -45,7 +45,7 @@ import numpy as np
 from bridges.geo import GeoError
 from rsu_app.perception.detector import Detection, DetectorError
 from rsu_app.perception.geo import CameraModel, box_to_ground, rough_ground_point
-from rsu_app.perception.tracker import GroundDetection, Tracker, TrackerError, TrackState
+from rsu_app.perception.tracker import GroundDetection, Tracker, TrackerConfig, TrackerError, TrackState
 
 log = logging.getLogger(__name__)
 HEADING_RADIUS = 3.0  # m: a track this close to a detection's rough ground point lends it its heading
@@ -118,7 +118,24 @@ class DetectionZone:
         return None
 
 
+def tracker_config(settings) -> TrackerConfig:
+    """The tracker configuration of the app's settings (`rsu_app.config.Settings`)."""
+    t = settings.tracker
+    return TrackerConfig(accel_std=t.accel_std, meas_std=t.meas_std, gate=t.gate, confirm_hits=t.confirm_hits,
+                         confirm_window=t.confirm_window, max_missed=t.max_missed, motion=t.motion)
+
+
 class PerceptionStage:
+    @classmethod
+    def from_settings(cls, detector, settings, intersection: dict | None) -> "PerceptionStage":
+        """Stage 1 as the app wires it from its settings (`rsu_app.config.Settings`) and the intersection the
+        master describes; one place, so that tools scoring the app's chain run exactly what it runs."""
+        s = settings
+        zone = DetectionZone(s.perception.max_range_m, intersection, s.perception.on_road_only,
+                             s.perception.road_margin_m)
+        return cls(detector, Tracker(tracker_config(s)), zone, s.detector.score_threshold,
+                   s.perception.merge_radius_m, s.perception.border_px)
+
     def __init__(self, detector, tracker: Tracker, zone: DetectionZone, score_threshold: float,
                  merge_radius_m: float = 2.5, border_px: float = 2.0):
         self.detector, self.tracker, self.zone = detector, tracker, zone
