@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from bridges.geo import GeoOrigin
-from rsu_app.perception.geo import CameraModel, GeoError, box_to_ground, near_ground_point
+from rsu_app.perception.geo import (VEHICLE_SIZE, BoxNoise, CameraModel, GeoError, box_to_ground, cut_edges,
+                                    ground_fix, near_ground_point)
 
 pytest.importorskip("pybullet")
 
@@ -142,3 +143,109 @@ def test_bad_boxes():
         box_to_ground((np.nan, 0, 1, 1), model)
     with pytest.raises(GeoError, match="u1 >= u0"):
         box_to_ground((10, 0, 5, 300), model)
+
+
+# -- the covariance of a box's ground point --------------------------------------------------------------------
+def _case_camera() -> CameraModel:
+    """The case study's RSU camera (6 m pole at the north-east corner, looking south-west), no rendering."""
+    with World(WorldLayout(cameras=[_spec(**POSES[0])])) as w:
+        c = w.cameras["c"]
+        return CameraModel(c.K, c.R_wc, c.position)
+
+
+def _exact_box(cam: CameraModel, x: float, y: float, yaw: float, dims) -> np.ndarray:
+    """The bounding box of the projected 3D box the fit models (the class's clearance kept)."""
+    from rsu_app.perception.geo import _box_corners
+
+    uv, depth = cam.project(_box_corners(x, y, yaw, *dims))
+    assert (depth > 0).all()
+    return np.concatenate([uv.min(axis=0), uv.max(axis=0)])
+
+
+def _nees(cam, x, y, yaw, label, noise: BoxNoise, draws: int, seed: int, size_rel: float = 0.0,
+          heading_std: float = 0.0) -> np.ndarray:
+    """Normalised errors of `ground_fix` when the box's edges (and, with size_rel / heading_std, the vehicle's
+    true size and the heading the caller passes) are drawn from exactly the noise the covariance assumes."""
+    rng = np.random.default_rng(seed)
+    typical = VEHICLE_SIZE[label]
+    out = []
+    for _ in range(draws):
+        dims = (*(np.array(typical[:3]) * (1 + size_rel * rng.standard_normal(3))), typical[3])
+        b = _exact_box(cam, x, y, yaw, dims)
+        extent = np.array([b[2] - b[0], b[3] - b[1]] * 2)
+        b = b + rng.standard_normal(4) * np.hypot(noise.edge_px, noise.edge_rel * extent)
+        p, C = ground_fix(b, cam, label, heading=yaw + heading_std * rng.standard_normal(), noise=noise)
+        e = p - np.array([x, y])
+        out.append(e @ np.linalg.solve(C, e))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("x, label", [(-20.0, "car"), (-50.0, "car"), (-40.0, "emergency")])
+def test_ground_covariance_is_calibrated_for_edge_noise(x, label):
+    """Box edges perturbed by the noise the model assumes: the normalised errors are chi-square with 2 degrees
+    of freedom (mean 2, 86.5 % within 2 sigma). A covariance off by a factor 1.5 either way, or one that
+    ignored the growth of the edge noise with the box, fails this."""
+    cam = _case_camera()
+    noise = BoxNoise(edge_px=1.0, edge_rel=0.06, size_rel=0.0, heading_rad=0.0, floor_m=0.0)
+    n = _nees(cam, x, -1.75, 0.0, label, noise, 300, seed=int(-x))
+    assert 1.6 < n.mean() < 2.45, n.mean()
+    assert 0.80 < np.mean(n <= 4.0) < 0.92, np.mean(n <= 4.0)
+
+
+def test_ground_covariance_is_calibrated_for_size_and_heading():
+    """The vehicle's true size drawn about the class's typical one, and the heading the tracker passes off by
+    a little: the size and heading terms of the covariance (the centre's sensitivity to them) account for it.
+    Without those terms the errors are far beyond their covariance."""
+    cam = _case_camera()
+    noise = BoxNoise(edge_px=0.5, edge_rel=0.0, size_rel=0.08, heading_rad=0.05, floor_m=0.0)
+    n = _nees(cam, -30.0, -1.75, 0.0, "car", noise, 300, seed=7, size_rel=0.08, heading_std=0.05)
+    assert 1.6 < n.mean() < 2.45 and 0.80 < np.mean(n <= 4.0) < 0.92, (n.mean(), np.mean(n <= 4.0))
+    blind = BoxNoise(edge_px=0.5, edge_rel=0.0, size_rel=0.0, heading_rad=0.0, floor_m=0.0)
+    m = _nees(cam, -30.0, -1.75, 0.0, "car", blind, 300, seed=7, size_rel=0.08, heading_std=0.05)  # same draws
+    assert m.mean() > 1.5 * n.mean() and np.mean(m <= 4.0) < np.mean(n <= 4.0) - 0.05, (m.mean(), n.mean())
+
+
+def test_ground_covariance_follows_the_viewing_ray_and_grows_with_range():
+    """One pixel of a far vehicle's bottom edge is d^2 / (f h) metres along the ray but only d / f across it:
+    from pixel noise alone the covariance's major axis lies along the viewing ray and grows about with the
+    square of the range, its minor axis about linearly."""
+    cam = _case_camera()
+    pixels = BoxNoise(edge_px=1.0, edge_rel=0.0, size_rel=0.0, heading_rad=0.0, floor_m=0.0)
+    sig = {}
+    for x in (-15.0, -45.0):
+        p, C = ground_fix(_exact_box(cam, x, -1.75, 0.0, VEHICLE_SIZE["car"]), cam, "car", heading=0.0,
+                          noise=pixels)
+        w, V = np.linalg.eigh(C)
+        ray = p - cam.position[:2]
+        ray /= np.linalg.norm(ray)
+        angle = math.degrees(math.acos(min(1.0, abs(float(V[:, 1] @ ray)))))
+        assert angle < 15.0, (x, angle)
+        sig[x] = (math.sqrt(w[1]), math.sqrt(w[0]))
+    (a15, c15), (a45, c45) = sig[-15.0], sig[-45.0]  # ranges 22 and 52 m from the pole: ratio 2.4
+    assert 4.0 < a45 / a15 < 8.0 and 1.5 < c45 / c15 < 3.5 and a45 > 3 * c45, sig
+
+
+def test_an_edge_on_the_border_says_only_where_the_vehicle_leaves_the_picture():
+    """A vehicle passing under the pole, its box cut by the bottom of the image: the cut edge carries no
+    information and the others are less sure (`cut_edge_rel`), so its point is far less certain than the
+    same vehicle's uncut box would make it; `cut_edges` flags an edge within a tenth of the box's extent
+    of the border (detectors stop short of it), not an edge well inside."""
+    cam = _case_camera()
+    whole = _exact_box(cam, 1.75, -12.0, math.pi / 2, VEHICLE_SIZE["car"])
+    assert whole[3] < 479  # inside the picture
+    cut = whole.copy()
+    cut[3] = 480.0
+    _, C_whole = ground_fix(whole, cam, "car", heading=math.pi / 2, border_px=2.0)
+    _, C_cut = ground_fix(cut, cam, "car", heading=math.pi / 2, border_px=2.0)
+    assert np.trace(C_cut) > 4 * np.trace(C_whole), (np.trace(C_cut), np.trace(C_whole))
+    assert cut_edges((100, 100, 200, 150), 640, 480, 2.0).tolist() == [False] * 4
+    assert cut_edges((100, 100, 200, 476), 640, 480, 2.0).tolist() == [False, False, False, True]  # 4 < 37.6 px
+    assert cut_edges((0.5, 100, 10, 110), 640, 480, 2.0).tolist() == [True, False, False, False]
+    assert cut_edges((3, 100, 13, 110), 640, 480, 2.0).tolist() == [False] * 4  # 3 px > max(2, 1)
+
+
+@pytest.mark.parametrize("kw, word", [(dict(edge_px=-1.0), "edge_px"), (dict(size_rel=math.nan), "size_rel"),
+                                      (dict(edge_px=0.0, floor_m=0.0), "singular")])
+def test_bad_box_noise_is_named(kw, word):
+    with pytest.raises(ValueError, match=word):
+        BoxNoise(**kw)
