@@ -372,3 +372,58 @@ def test_new_vehicles_beside_a_confirmed_track_start_and_confirm_their_own_track
     final = {s.id: s for s in tr.predict(3.0)}
     for name, tid in (("far", far), ("real", real), ("beside", beside)):
         assert math.hypot(final[tid].x - truth[name](3.0)[0], final[tid].y - truth[name](3.0)[1]) < 0.5
+
+
+# --- a covariance per detection ------------------------------------------------------------------------------
+ANISO = (9.0, 0.0, 0.04)  # var_x, cov_xy, var_y: 3 m along x (a viewing ray), 0.2 m across it
+
+
+def _aniso_nees(use_cov: bool, runs: int = 30, seed: int = 5) -> tuple[float, float]:
+    """Mean NEES of a CV track on a vehicle driving east at 15 m/s, detected with 3 m noise along x and 0.2 m
+    across, when its detections carry that covariance (or not: the tracker's meas_std 0.7 m on each axis);
+    and the mean ratio of the track's position std along x to along y."""
+    rng = np.random.default_rng(seed)
+    L = np.linalg.cholesky(np.array([[ANISO[0], ANISO[1]], [ANISO[1], ANISO[2]]]))
+    values, ratios = [], []
+    for _ in range(runs):
+        tr = Tracker(init_speed_std=20.0, gate=1e3)  # wide: without the covariance most points lie beyond 13.82
+        for k in range(40):
+            truth = np.array([-80.0 + 15.0 * k * DT, -1.75])
+            z = truth + L @ rng.standard_normal(2)
+            (s,) = tr.update(k * DT, [GroundDetection(*z, cov=ANISO if use_cov else None)]) or (None,)
+            if s is not None and k >= 15:
+                e = np.array([s.x, s.y]) - truth
+                values.append(float(e @ np.linalg.solve(s.cov[:2, :2], e)))
+                ratios.append(math.sqrt(s.cov[0, 0] / s.cov[1, 1]))
+    return float(np.mean(values)), float(np.mean(ratios))
+
+
+def test_a_detection_covariance_weighs_each_direction_by_what_it_is_worth():
+    """A far vehicle's ground point is uncertain along the viewing ray, precise across it. With each detection's
+    covariance the track is consistent (NEES ~2, ideal 2) and knows its position is far surer across the ray;
+    with one figure for both axes the same detections leave it overconfident along the ray."""
+    with_cov, ratio = _aniso_nees(True)
+    without, flat = _aniso_nees(False)
+    assert 1.5 <= with_cov <= 2.6, with_cov
+    assert ratio > 4.0 and flat == pytest.approx(1.0, abs=0.05), (ratio, flat)
+    assert without > 2 * with_cov, (without, with_cov)
+
+
+@pytest.mark.parametrize("offset, joins", [((4.0, 0.0), True), ((0.0, 1.5), False)])
+def test_the_gate_uses_each_detection_s_covariance(offset, joins):
+    """A confirmed static track and a detection 4 m off along its uncertain axis (3 m std) joins it; one
+    1.5 m off across it (0.2 m std) does not, though the second is nearer."""
+    tr = Tracker()
+    for k in range(20):
+        tr.update(k * DT, [GroundDetection(10.0, 20.0, cov=ANISO)])
+    (track_id,) = [x.id for x in tr.tracks]
+    tr.update(20 * DT, [GroundDetection(10.0 + offset[0], 20.0 + offset[1], cov=ANISO)])
+    assert (tr.last_assignment == [track_id]) == joins, (offset, tr.last_assignment)
+
+
+@pytest.mark.parametrize("cov", [(1.0, 2.0, 1.0), (-1.0, 0.0, 1.0), (math.nan, 0.0, 1.0), ("a", 0, 1)])
+def test_a_bad_detection_covariance_is_refused(cov):
+    tr = Tracker()
+    with pytest.raises(TrackerError, match="covariance"):
+        tr.update(0.0, [GroundDetection(0.0, 0.0, cov=cov)])
+    assert tr.tracks == [] and tr.last_assignment == []

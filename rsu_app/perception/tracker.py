@@ -25,7 +25,12 @@ sitting on the outlier, pays a smaller d^2 for the next detections that err
 to the same side than its larger ln |S| costs, takes them, and is confirmed
 beside the real track or outlives it (a duplicate vehicle broadcast, or an id
 switch). A tentative track only ever gets what no confirmed track can use.
-A track is confirmed
+Measurement noise: a `GroundDetection` may carry its own ground-plane covariance
+(`cov`, from `geo.ground_fix`: a far vehicle's point is worth much less along
+the camera ray than across it, a near one's is good to decimetres); without
+it the isotropic `meas_std` is used. The same R starts a track's position
+(its velocity starts at 0 +- `init_speed_std`), enters the gate's S and the
+filter's update. A track is confirmed
 after M hits in its first N frames and dropped after `max_missed` frames
 without a detection. `predict(t)` extrapolates confirmed tracks to any later
 time without changing them, so the 10 Hz BSM clock does not need a
@@ -65,6 +70,14 @@ class GroundDetection:
     y: float  # world metres (north)
     label: str = "car"
     score: float = 1.0
+    cov: tuple[float, float, float] | None = None  # (var_x, cov_xy, var_y) m^2; None: TrackerConfig.meas_std
+
+    def R(self, meas_std: float) -> np.ndarray:
+        """The measurement noise covariance of this detection."""
+        if self.cov is None:
+            return np.eye(2) * meas_std ** 2
+        a, b, c = self.cov
+        return np.array([[a, b], [b, c]], float)
 
 
 @dataclass
@@ -117,6 +130,14 @@ class _Estimate(NamedTuple):
     yaw_rate: float | None
 
 
+def _positive_definite(cov) -> bool:
+    try:
+        a, b, c = (float(v) for v in cov)
+    except (TypeError, ValueError):
+        return False
+    return all(math.isfinite(v) for v in (a, b, c)) and a > 0 and a * c - b * b > 0
+
+
 def _transition(dt: float, accel_std: float) -> tuple[np.ndarray, np.ndarray]:
     F = np.eye(4)
     F[0, 2] = F[1, 3] = dt
@@ -130,7 +151,8 @@ class _CvFilter:
     def __init__(self, det: GroundDetection, cfg: TrackerConfig):
         kf = KalmanFilter(dim_x=4, dim_z=2)
         kf.x = np.array([[det.x], [det.y], [0.0], [0.0]])
-        kf.P = np.diag([cfg.meas_std ** 2] * 2 + [cfg.init_speed_std ** 2] * 2)
+        kf.P = np.diag([0.0] * 2 + [cfg.init_speed_std ** 2] * 2)
+        kf.P[:2, :2] = det.R(cfg.meas_std)
         kf.H = H.copy()
         kf.R = np.eye(2) * cfg.meas_std ** 2
         self.kf, self.accel_std = kf, cfg.accel_std
@@ -139,8 +161,8 @@ class _CvFilter:
         F, Q = _transition(dt, self.accel_std)
         self.kf.predict(F=F, Q=Q)
 
-    def update(self, z: np.ndarray) -> None:
-        self.kf.update(z.reshape(2, 1))
+    def update(self, z: np.ndarray, R: np.ndarray) -> None:
+        self.kf.update(z.reshape(2, 1), R=R)
 
     def position_and_cov(self) -> tuple[np.ndarray, np.ndarray]:
         return (H @ self.kf.x).ravel(), H @ self.kf.P @ H.T
@@ -252,11 +274,11 @@ class _CtrvFilter:
         self.ukf.predict(dt=dt)
         self.ukf.P = (self.ukf.P + self.ukf.P.T) / 2
 
-    def update(self, z: np.ndarray) -> None:
+    def update(self, z: np.ndarray, R: np.ndarray) -> None:
         # filterpy updates from the sigma points its last predict left; redraw them so an update
         # without a predict (dt == 0, or right after the switch) uses the current state
         self.ukf.sigmas_f = self.points.sigma_points(self.ukf.x, self.ukf.P)
-        self.ukf.update(z)
+        self.ukf.update(z, R=R)
         self.ukf.P = (self.ukf.P + self.ukf.P.T) / 2
 
     def position_and_cov(self) -> tuple[np.ndarray, np.ndarray]:
@@ -327,6 +349,9 @@ class Tracker:
         for d in dets:
             if not (math.isfinite(d.x) and math.isfinite(d.y)):
                 raise TrackerError(f"detection position must be finite, got ({d.x}, {d.y})")
+            if d.cov is not None and not _positive_definite(d.cov):
+                raise TrackerError(f"detection covariance (var_x, cov_xy, var_y) must be finite and positive "
+                                   f"definite, got {d.cov}")
         cfg = self.cfg
         for tr in self.tracks:
             dt = t - tr.t
@@ -340,7 +365,7 @@ class Tracker:
         for i, j in pairs:
             tr, d = self.tracks[i], dets[j]
             assignment[j] = tr.id
-            tr.filter.update(np.array([d.x, d.y]))
+            tr.filter.update(np.array([d.x, d.y]), d.R(cfg.meas_std))
             tr.hits.append(True)
             tr.missed = 0
             tr.votes[d.label] = tr.votes.get(d.label, 0.0) + d.score
@@ -387,16 +412,15 @@ class Tracker:
         if not track_idx or not det_idx:
             return []
         z = np.array([[dets[j].x, dets[j].y] for j in det_idx])
-        R = np.eye(2) * self.cfg.meas_std ** 2
+        R = np.array([dets[j].R(self.cfg.meas_std) for j in det_idx])  # (M, 2, 2)
         cost = np.full((len(track_idx), len(det_idx)), np.inf)
         for r, i in enumerate(track_idx):
             pos, Ppos = self.tracks[i].filter.position_and_cov()
-            S = Ppos + R
-            Si = np.linalg.inv(S)
+            S = Ppos[None] + R
             y = z - pos
-            d2 = np.einsum("ni,ij,nj->n", y, Si, y)
+            d2 = np.einsum("ni,ni->n", y, np.linalg.solve(S, y[:, :, None])[:, :, 0])
             ok = d2 <= self.cfg.gate
-            cost[r, ok] = d2[ok] + math.log(np.linalg.det(S))
+            cost[r, ok] = d2[ok] + np.log(np.linalg.det(S[ok]))
         big = 1e9
         rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, big))
         return [(track_idx[r], det_idx[c]) for r, c in zip(rows, cols) if np.isfinite(cost[r, c])]
