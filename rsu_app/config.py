@@ -105,7 +105,11 @@ class DetectorSettings:
 @dataclass
 class PerceptionSettings:
     max_range_m: float = field(default=60.0, metadata=_key(
-        "ground points farther than this from the camera are ignored (box-based positions degrade with range)",
+        "tracks farther than this from the camera are not broadcast (box-based positions degrade with range)",
+        positive=True))
+    track_range_m: float = field(default=90.0, metadata=_key(
+        "ground points out to this range start and update tracks (>= max_range_m), so that a vehicle's track "
+        "is confirmed and settled when it enters max_range_m; its far points weigh what their covariance says",
         positive=True))
     on_road_only: bool = field(default=True, metadata=_key(
         "ignore ground points off the roads of the intersection the master describes (the RSU's detection zone)"))
@@ -116,6 +120,17 @@ class PerceptionSettings:
     border_px: float = field(default=2.0, metadata=_key(
         "a box this close to the image border may update a track near it but never start one (-1: off)",
         low=-1.0))
+    ground_covariance: bool = field(default=True, metadata=_key(
+        "each ground point carries the covariance of its box fit (the box noise below, propagated through "
+        "geo.ground_fix); false: every point counts as tracker.meas_std on each axis"))
+    box_edge_px: float = field(default=1.0, metadata=_key(
+        "std of a box edge in pixels ... (chosen on the validation set: eval-detector --ground)", positive=True))
+    box_edge_rel: float = field(default=0.06, metadata=_key(
+        "... plus this share of the box's width (left/right edges) or height (top/bottom)", low=0.0))
+    box_cut_edge_rel: float = field(default=0.3, metadata=_key(
+        "... or this share for a box cut by the image border (the detector saw part of the vehicle)", low=0.0))
+    size_rel: float = field(default=0.12, metadata=_key(
+        "relative std of a vehicle's length, width and height about its class's typical size", low=0.0))
 
 
 @dataclass
@@ -129,6 +144,9 @@ class TrackerSettings:
         low=0, high=1000))
     meas_std: float = field(default=0.7, metadata=_key("m: per-axis error of a ground position", positive=True))
     accel_std: float = field(default=3.0, metadata=_key("m/s^2: manoeuvring noise", positive=True))
+    init_speed_std: float = field(default=20.0, metadata=_key(
+        "m/s: velocity std of a new track (its prior is standing still); wide, since a vehicle often arrives "
+        "along the camera's viewing ray, where its first ground points cannot tell its speed", positive=True))
     gate: float = field(default=13.82, metadata=_key("chi-square association gate (2 dof)", positive=True))
 
 
@@ -409,6 +427,10 @@ def build_settings(flags: dict[str, Any] | None = None, config: dict[str, Any] |
             except ValueError as exc:
                 where = f" (from ${spec.env})" if source == "environment" else ""
                 problems.append((dotted, f"{exc}{where}"))
+    if settings.perception.track_range_m < settings.perception.max_range_m:
+        pr = settings.perception
+        problems.append(("perception.track_range_m", f"must be >= perception.max_range_m ({pr.max_range_m}), "
+                                                     f"got {pr.track_range_m}"))
     if settings.tracker.confirm_hits > settings.tracker.confirm_window:
         t = settings.tracker
         problems.append(("tracker.confirm_hits", f"must be <= tracker.confirm_window ({t.confirm_window}), "

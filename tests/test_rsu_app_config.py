@@ -161,3 +161,25 @@ def test_the_detections_trace_switch_defaults_on_and_a_misspelt_key_is_named():
     with pytest.raises(ConfigError) as err:
         build_settings({}, {**base, "app": {"trace_detections": "yes"}}, {})
     assert err.value.problems[0][0] == "app.trace_detections" and "expected true or false" in err.value.problems[0][1]
+
+
+def test_the_ground_noise_and_ranges_are_checked_and_match_the_geometry_s_defaults():
+    """The box noise the app's ground covariances assume: its defaults are geo.BoxNoise's (one calibration,
+    docs/rsu_app.md), each bad value is named, and a track range short of the broadcast range is refused."""
+    from rsu_app.perception.geo import BoxNoise
+    from rsu_app.perception_stage import box_noise
+
+    base = {"security": {"mode": "unsecured"}}
+    s = build_settings({}, base, {})
+    assert box_noise(s) == BoxNoise()
+    assert s.perception.track_range_m >= s.perception.max_range_m and s.perception.ground_covariance is True
+    with pytest.raises(ConfigError) as err:
+        build_settings({}, {**base, "perception": {"track_range_m": 50.0, "box_edge_px": 0.0, "size_rel": -0.1,
+                                                   "ground_covariance": "maybe"},
+                            "tracker": {"init_speed_std": 0}}, {})
+    keys = [k for k, _ in err.value.problems]
+    assert keys == ["perception.box_edge_px", "perception.size_rel", "perception.ground_covariance",
+                    "tracker.init_speed_std", "perception.track_range_m"], err.value.problems
+    assert "must be >= perception.max_range_m (60.0), got 50.0" in dict(err.value.problems)["perception.track_range_m"]
+    s = build_settings({"perception.track_range_m": "60", "perception.ground_covariance": "false"}, base, {})
+    assert s.perception.track_range_m == 60.0 and s.perception.ground_covariance is False

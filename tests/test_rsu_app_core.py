@@ -241,6 +241,46 @@ def test_tracks_that_age_out_stop_being_broadcast():
     assert not core.perception.tracker.tracks
 
 
+def _first_broadcast(settings_overrides: dict, vehicle: Vehicle, stop: float = 5.0):
+    """Drive the app's stage 1 (PerceptionStage.from_settings) with the oracle's exact boxes of one vehicle at
+    10 Hz: (the first frame time it is broadcast, the first frame time its centre is within max_range_m, the
+    stage's rejection counts, the largest distance of a broadcast track from the camera)."""
+    from rsu_app.config import Settings
+
+    s = Settings()
+    for key, value in settings_overrides.items():
+        section, name = key.split(".")
+        setattr(getattr(s, section), name, value)
+    stage = PerceptionStage.from_settings(Oracle(), s, INTERSECTION)
+    first, entered, farthest = None, None, 0.0
+    for k in range(int(round(stop * 10)) + 1):
+        t = k / 10
+        x, y = vehicle.at(t)
+        if entered is None and math.hypot(x - CAM.position[0], y - CAM.position[1]) <= s.perception.max_range_m:
+            entered = t
+        stage.apply([stage.process(FakeFrame("rsu_cam", k, t, Pixels(t, [vehicle])), t)])
+        sent = stage.broadcastable(stage.tracker.predict(t))
+        for st in sent:
+            farthest = max(farthest, math.hypot(st.x - CAM.position[0], st.y - CAM.position[1]))
+        if sent and first is None:
+            first = t
+    return first, entered, stage.rejected, farthest
+
+
+def test_a_track_started_beyond_the_broadcast_range_is_sent_from_the_first_frame_inside_it():
+    """An emergency vehicle arriving at 60 km/h from 87 m: with track_range_m 90 its track is started and
+    confirmed out there but not broadcast until it enters max_range_m (60 m), and then at once; with the
+    track range no wider than the broadcast range, its first 3 detections inside (0.3 s, 5 m) go without a
+    BSM, as before."""
+    ev = Vehicle(-80.0, -1.75, 0.0, 16.667, "emergency")
+    first, entered, rejected, farthest = _first_broadcast({"perception.track_range_m": 90.0}, ev)
+    assert entered is not None and first == pytest.approx(entered), (first, entered)
+    assert farthest <= 60.0 + 1.0, farthest  # nothing is sent from beyond max_range_m (a track's own error aside)
+    late, entered2, rejected2, _ = _first_broadcast({"perception.track_range_m": 60.0}, ev)
+    assert entered2 == entered and late == pytest.approx(entered + 0.2), (late, entered)
+    assert rejected2.get("beyond track_range_m", 0) > rejected.get("beyond track_range_m", 0) + 10, (rejected2, rejected)
+
+
 def test_position_accuracy_is_the_covariance_ellipse():
     major, minor, orientation = covariance_ellipse(np.array([[4.0, 0.0], [0.0, 1.0]]))
     assert (major, minor, orientation) == pytest.approx((2.0, 1.0, 90.0))  # the long axis points east
