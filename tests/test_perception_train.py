@@ -273,3 +273,50 @@ def test_heavily_occluded_vehicles_are_masked_out_of_the_loss(data, tmp_path):
         train(tmp_path, None, epochs=1, max_occlusion=0.75, **TINY)
     with pytest.raises(ValueError, match="max_occlusion"):
         train(data, None, epochs=1, max_occlusion=1.5, **TINY)
+
+
+def test_class_weights_scale_each_class_s_terms_of_the_loss(data, tmp_path, capsys):
+    """emergency=2 doubles exactly the emergency vehicles' part of the loss (their heatmap, hits and false
+    alarms, and their box terms) and nothing of the cars'; weights of 1 are the plain loss; the CLI takes
+    --class-weight CLASS=W and refuses a bad one naming it."""
+    from master.cli import main
+    from rsu_app.perception.model import CenterNet
+    from rsu_app.perception.train import focal_loss, loss_fn, sample_item
+
+    ds = load_dataset(data)
+    cfg = ModelConfig(width=8, input_size=(192, 144))
+    items = [sample_item(ds, i, cfg, np.random.default_rng(i), augment=False) for i in range(len(ds))]
+    batch = [torch.from_numpy(np.stack(col)) for col in zip(*items)]
+    torch.manual_seed(0)
+    with torch.no_grad():
+        out = CenterNet(cfg)(batch[0])
+    heat, weight, ind, size, offset, mask = batch[1:]
+    ev = cfg.classes.index("emergency")
+    ones = torch.ones(len(cfg.classes))
+    twice = torch.tensor([2.0 if c == "emergency" else 1.0 for c in cfg.classes])
+    plain, _ = loss_fn(out, batch[1:])
+    same, _ = loss_fn(out, batch[1:], ones)
+    assert torch.allclose(plain, same, rtol=1e-6)
+    # heatmap: the emergency channel counts twice (its loss alone, over the same count of objects, added once)
+    c = slice(ev, ev + 1)
+    ev_part = focal_loss(out[0][:, c], heat[:, c], weight[:, c]) * heat[:, c].eq(1).sum() / heat.eq(1).sum()
+    assert torch.allclose(focal_loss(out[0], heat, weight, twice), focal_loss(out[0], heat, weight) + ev_part,
+                          rtol=1e-5)
+    # box terms: the emergency vehicles' size and offset errors count twice
+    is_ev = torch.stack([heat[n, ev].view(-1)[ind[n]].ge(1.0) for n in range(len(ind))]).float() * mask
+    assert is_ev.sum() > 0 and (mask - is_ev).sum() > 0  # the toy set has both classes
+    _, p = loss_fn(out, batch[1:])
+    _, w = loss_fn(out, batch[1:], twice)
+    _, e = loss_fn(out, (heat, weight, ind, size, offset, is_ev))
+    n_all, n_ev = float(mask.sum()), float(is_ev.sum())
+    assert w["size"] == pytest.approx(p["size"] + e["size"] * n_ev / n_all, rel=1e-5)
+    assert w["offset"] == pytest.approx(p["offset"] + e["offset"] * n_ev / n_all, rel=1e-5)
+    w_ckpt = train(data, None, epochs=1, seed=0, class_weights={"emergency": 2.0}, **TINY)
+    assert w_ckpt["training"]["class_weights"] == {"emergency": 2.0}
+    with pytest.raises(ValueError, match="'ambulance'.*classes: car, emergency"):
+        train(data, None, epochs=1, class_weights={"ambulance": 2.0}, **TINY)
+    with pytest.raises(ValueError, match="emergency=0"):
+        train(data, None, epochs=1, class_weights={"emergency": 0}, **TINY)
+    assert main(["train-detector", "--data", str(data), "--out", str(tmp_path / "w.pt"), "--epochs", "1",
+                 "--class-weight", "emergency"]) == 2
+    assert "--class-weight emergency: expected CLASS=WEIGHT" in capsys.readouterr().err

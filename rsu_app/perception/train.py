@@ -170,30 +170,40 @@ def _state_digest(state: dict) -> str:
     return h.hexdigest()
 
 
-def focal_loss(pred: torch.Tensor, gt: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """CenterNet's penalty-reduced focal loss, normalised by the number of objects."""
+def focal_loss(pred: torch.Tensor, gt: torch.Tensor, weight: torch.Tensor,
+               class_weights: torch.Tensor | None = None) -> torch.Tensor:
+    """CenterNet's penalty-reduced focal loss, normalised by the number of objects; `class_weights` (C,)
+    scales each class's heatmap (its hits and its false alarms alike)."""
     pred = pred.clamp(1e-4, 1 - 1e-4)
     pos = gt.eq(1).float()
     neg = (1 - pos) * weight
+    if class_weights is not None:
+        cw = class_weights.view(1, -1, 1, 1)
+        pos, neg = pos * cw, neg * cw
     pos_loss = torch.log(pred) * (1 - pred) ** 2 * pos
     neg_loss = torch.log(1 - pred) * pred ** 2 * (1 - gt) ** 4 * neg
-    n = pos.sum()
+    n = gt.eq(1).float().sum()
     return -(pos_loss.sum() + neg_loss.sum()) / torch.clamp(n, min=1.0)
 
 
 def _gather(feat: torch.Tensor, ind: torch.Tensor) -> torch.Tensor:
-    """(N, 2, H, W) at flat indices (N, K) -> (N, K, 2)."""
+    """(N, C, H, W) at flat indices (N, K) -> (N, K, C)."""
     n, c = feat.shape[:2]
     flat = feat.view(n, c, -1)
     return flat.gather(2, ind.unsqueeze(1).expand(n, c, ind.shape[1])).permute(0, 2, 1)
 
 
-def loss_fn(outputs, targets) -> tuple[torch.Tensor, dict[str, float]]:
+def loss_fn(outputs, targets, class_weights: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+    """Heatmap focal loss + L1 on log box size and centre offset; `class_weights` (C,) weigh each object's
+    terms by its class (the class whose heatmap peaks at 1 on the object's centre cell)."""
     heat_p, size_p, off_p = outputs
     heat, weight, ind, size, offset, mask = targets
-    lh = focal_loss(heat_p, heat, weight)
+    lh = focal_loss(heat_p, heat, weight, class_weights)
+    if class_weights is not None:
+        own = _gather(heat, ind).ge(1.0).float()  # (N, K, C): the object's class
+        mask = mask * torch.where(own.sum(2) > 0, own @ class_weights, torch.ones_like(mask))
     m = mask.unsqueeze(2)
-    n = torch.clamp(mask.sum(), min=1.0)
+    n = torch.clamp(targets[5].sum(), min=1.0)
     ls = (torch.abs(_gather(size_p, ind) - size) * m).sum() / (2 * n)
     lo = (torch.abs(_gather(off_p, ind) - offset) * m).sum() / (2 * n)
     total = lh + ls + lo
@@ -204,15 +214,23 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
           batch_size: int = 8, lr: float = 2e-3, width: int = 16, input_size: tuple[int, int] = (320, 240),
           augment: bool = True, cache_images: bool = True, crop: tuple[int, int] | None = None,
           heads: str = "separable", command: str | None = None, log=None, init: str | Path | dict | None = None,
-          max_occlusion: float | None = None) -> dict:
+          max_occlusion: float | None = None, class_weights: dict[str, float] | None = None) -> dict:
     """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict.
     `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size.
     `init`: a checkpoint to start from (its width, input size and heads are used; the arguments
-    for them are then ignored). `max_occlusion` (0..1): mask truths more hidden than this."""
+    for them are then ignored). `max_occlusion` (0..1): mask truths more hidden than this. `class_weights`
+    ({label: weight}, others 1): how much each class's objects count in the loss (the emergency vehicle
+    is the one the case study exists for)."""
     if epochs < 1 or batch_size < 1 or threads < 1:
         raise ValueError(f"epochs, batch_size and threads must be >= 1, got {epochs}, {batch_size}, {threads}")
     if max_occlusion is not None and not 0.0 <= max_occlusion <= 1.0:
         raise ValueError(f"max_occlusion must be within 0..1, got {max_occlusion}")
+    class_weights = dict(class_weights or {})
+    bad = [f"{k!r} (classes: {', '.join(ModelConfig().classes)})" for k in class_weights if k not in ModelConfig().classes]
+    bad += [f"{k}={v!r} (must be a finite number > 0)" for k, v in class_weights.items()
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0)]
+    if bad:
+        raise ValueError(f"class_weights: {'; '.join(bad)}")
     base = None
     if init is not None:
         from rsu_app.perception.torch_backend import load_weights
@@ -241,6 +259,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     net = CenterNet(cfg)
     if base is not None:
         net.load_state_dict(base["state_dict"])
+    cw = (torch.tensor([float(class_weights.get(c, 1.0)) for c in cfg.classes]) if class_weights else None)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     steps_per_epoch = math.ceil(len(ds) / batch_size)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=epochs * steps_per_epoch,
@@ -257,7 +276,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
                                  crop=crop, max_occlusion=max_occlusion)
                      for i in order[b * batch_size:(b + 1) * batch_size]]
             batch = [torch.from_numpy(np.stack(col)) for col in zip(*items)]
-            loss, parts = loss_fn(net(batch[0]), batch[1:])
+            loss, parts = loss_fn(net(batch[0]), batch[1:], cw)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -276,7 +295,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
             "seed": seed, "epochs": epochs, "threads": threads, "batch_size": batch_size, "lr": lr,
             "augment": augment, "crop": list(crop) if crop else None, "width": width, "heads": heads,
             "input_size": list(input_size), "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
-            "max_occlusion": max_occlusion,
+            "max_occlusion": max_occlusion, "class_weights": class_weights or None,
             "init": None if base is None else {
                 "command": base.get("training", {}).get("command"),
                 "dataset_sha256": base.get("training", {}).get("dataset_sha256"),
