@@ -108,3 +108,58 @@ def test_recall_by_distance_per_class():
 def test_mismatched_lengths():
     with pytest.raises(ValueError, match="1 detection lists for 2 images"):
         evaluate_detections(_ds([[], []]), [[]])
+
+
+# -- ground error of the boxes ----------------------------------------------------------------------------------
+def _ground_case():
+    """The case study's RSU camera and three vehicles on the south road (west of the pole): their exact boxes
+    (the projected 3D box the fit models), a dataset holding them and the camera."""
+    from master.world.layout import CameraSpec, WorldLayout
+    from master.world.world import World
+    from rsu_app.perception.geo import VEHICLE_SIZE, CameraModel, _box_corners
+
+    spec = CameraSpec(name="c", width=640, height=480, x=6.5, y=6.5, z=6.0, yaw=225.0, pitch=-14.0, roll=0.0,
+                      fov_deg=100.0)
+    with World(WorldLayout(cameras=[spec])) as w:
+        c = w.cameras["c"]
+        cam = CameraModel(c.K, c.R_wc, c.position)
+    truths = []
+    for x, label in ((-10.0, "car"), (-30.0, "emergency"), (-50.0, "car")):
+        uv, _ = cam.project(_box_corners(x, -1.75, 0.0, *VEHICLE_SIZE[label]))
+        box = (*uv.min(axis=0), *uv.max(axis=0))
+        dist = float(np.hypot(x - cam.position[0], -1.75 - cam.position[1]))
+        truths.append(_t(box, label, position=(x, -1.75), heading=0.0, distance=dist, occlusion=0.0))
+    camera = {"K": np.asarray(cam.K).tolist(), "R_wc": np.asarray(cam.R_wc).tolist(),
+              "position": np.asarray(cam.position).tolist()}
+    ds = Dataset(None, [Sample(0, None, 640, 480, truths, camera=camera)], {1: "car", 2: "emergency"}, {})
+    return ds, truths
+
+
+def test_ground_error_of_boxes_per_class_and_distance():
+    """Exact boxes land on the true centres (the detector's and the true ones alike); a box whose bottom edge
+    is 6 px low puts the vehicle metres nearer along the ray; a box below the score threshold, or of the wrong
+    class, finds nothing; the rows are per class and distance band and the JSON holds no NaN."""
+    from rsu_app.perception.evaluate import evaluate_ground
+
+    ds, (near, ev, far) = _ground_case()
+    low = np.array(far.box) + [0, 0, 0, 6.0]
+    dets = [[_d(near.box, 0.9), _d(ev.box, 0.9, "emergency"), _d(low, 0.9), _d(near.box, 0.5, "emergency")]]
+    rep = evaluate_ground(ds, dets, "toy")
+    rows = {(r["class"], r["boxes"], r["heading"], r["bin"]): r for r in rep.rows}
+    for label, b in (("car", "0-20"), ("emergency", "20-40"), ("car", "40-60")):
+        r = rows[(label, "true", "known", b)]
+        assert r["n"] == 1 and r["median_m"] < 0.05, r
+    assert rows[("car", "detector", "known", "0-20")]["median_m"] < 0.05
+    assert rows[("emergency", "detector", "known", "20-40")]["median_m"] < 0.05
+    assert rows[("car", "detector", "known", "40-60")]["median_m"] > 1.0  # the low bottom edge
+    assert rows[("car", "detector", "known", "all")]["n"] == 2
+    far_sample = [s for s in rep.samples if s["boxes"] == "detector" and s["distance"] > 40 and s["heading"] == "known"]
+    assert far_sample[0]["along_m"] < -1.0 and abs(far_sample[0]["across_m"]) < 0.5 * abs(far_sample[0]["along_m"])
+    # the emergency vehicle's 0.5-score box on the near car neither finds it nor counts at threshold 0.6
+    assert rows[("emergency", "detector", "known", "all")]["n"] == 1
+    high = evaluate_ground(ds, dets, "toy", score_threshold=0.95)
+    assert not [r for r in high.rows if r["boxes"] == "detector"]
+    d = rep.to_dict()
+    assert d["rows"][0]["nees"] is not None
+    json.dumps(d, allow_nan=False)  # an empty band is null, not NaN
+    assert "median" in rep.table() and "emergency" in rep.table()

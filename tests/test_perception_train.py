@@ -174,6 +174,11 @@ def test_cli_train_eval_export(data, tmp_path, capsys):
     assert main(["eval-detector", "--data", str(data), "--weights", str(w), "--json", "--threads", "1"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["images"] == 12 and set(rep["ap50"]) == {"car", "emergency", "overall"}
+    # --ground needs what a rendered set has (tests/test_perception_evaluate.py scores the ground error)
+    assert main(["eval-detector", "--data", str(data), "--weights", str(w), "--ground"]) == 2
+    assert "has no camera or vehicle positions" in capsys.readouterr().err
+    assert main(["eval-detector", "--data", str(data), "--weights", str(w), "--ground-score", "0.5"]) == 2
+    assert "--ground-score 0.5: needs --ground" in capsys.readouterr().err
     assert main(["export-detector", "--weights", str(w), "--out", str(tmp_path / "m.onnx")]) == 0
     assert main(["eval-detector", "--data", str(data), "--detector", "onnx", "--weights",
                  str(tmp_path / "m.onnx")]) == 0

@@ -37,6 +37,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--max-occlusion", type=float,
                    help="mask vehicles more hidden than this (0..1, from the dataset's occlusion labels) out "
                         "of the loss")
+    t.add_argument("--class-weight", action="append", default=[], metavar="CLASS=W",
+                   help="weigh this class's objects W times in the loss (repeatable), e.g. emergency=2")
     t.set_defaults(func=_cmd_train)
 
     e = sub.add_parser("eval-detector", help="AP, recall by distance/occlusion and FPS of a detector on a dataset")
@@ -50,6 +52,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "cores are busy; benchmarks/perception.py measures 1 and 2)")
     e.add_argument("--score-threshold", type=float, default=0.05,
                    help="lowest score kept (low for AP; recall bins use it too)")
+    e.add_argument("--ground", action="store_true",
+                   help="also place each found vehicle on the ground from its box (geo.ground_fix, the RSU app's "
+                        "default box noise) and report the error from its true centre per class and distance, "
+                        "beside the true boxes', with the normalised error that checks the covariance")
+    e.add_argument("--ground-score", type=float, default=None,
+                   help="--ground counts boxes with at least this score (default the RSU app's threshold, 0.6)")
     e.add_argument("--json", action="store_true", help="print JSON instead of a table")
     e.set_defaults(func=_cmd_eval)
 
@@ -69,6 +77,7 @@ def _cmd_train(args) -> int:
     try:
         input_size = _size_arg("--input", args.input)
         crop = _size_arg("--crop", args.crop) if args.crop else None
+        class_weights = _class_weights(args.class_weight)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -77,6 +86,7 @@ def _cmd_train(args) -> int:
         ckpt = train(args.data, args.out, epochs=args.epochs, seed=args.seed, threads=args.threads,
                      batch_size=args.batch_size, lr=args.lr, width=args.width, crop=crop,
                      input_size=input_size, heads=args.heads, init=args.init, max_occlusion=args.max_occlusion,
+                     class_weights=class_weights,
                      command=command or f"v2i train-detector --data {args.data} --out {args.out} "
                                         f"--epochs {args.epochs} --seed {args.seed} --threads {args.threads}")
     except (DatasetError, ValueError) as exc:
@@ -90,6 +100,20 @@ def _cmd_train(args) -> int:
     print(f"trained {tr['epochs']} epochs on {tr['images']} images in {tr['seconds']} s; "
           f"final loss {tr['history'][-1]['loss']:.4f}; wrote {args.out}")
     return 0
+
+
+def _class_weights(items: list[str]) -> dict[str, float]:
+    """['emergency=2', ...] -> {'emergency': 2.0}, or ValueError naming the flag and the bad item."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            if not sep:
+                raise ValueError
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--class-weight {item}: expected CLASS=WEIGHT, e.g. emergency=2") from None
+    return out
 
 
 def _size_arg(flag: str, text: str) -> tuple[int, int]:
@@ -122,8 +146,25 @@ def _cmd_eval(args) -> int:
     except (DatasetError, DetectorError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    report = evaluate(det, ds)
-    print(json.dumps(report.to_dict(), indent=2) if args.json else report.table())
+    if args.ground_score is not None and not (args.ground and 0.0 <= args.ground_score <= 1.0):
+        print(f"error: --ground-score {args.ground_score}: needs --ground and a score within 0..1", file=sys.stderr)
+        return 2
+    if args.ground and not any(s.camera and any(t.position is not None for t in s.truths) for s in ds.samples):
+        print(f"error: --ground: {args.data} has no camera or vehicle positions (a set rendered by "
+              f"`v2i dataset` has both)", file=sys.stderr)
+        return 2
+    detections: list = []
+    report = evaluate(det, ds, detections=detections)
+    out = report.to_dict()
+    text = report.table()
+    if args.ground:
+        from rsu_app.perception.evaluate import GROUND_SCORE, evaluate_ground
+
+        ground = evaluate_ground(ds, detections, det.name, GROUND_SCORE if args.ground_score is None
+                                 else args.ground_score)
+        out["ground"] = ground.to_dict()
+        text += "\n" + ground.table()
+    print(json.dumps(out, indent=2) if args.json else text)
     return 0
 
 

@@ -101,16 +101,7 @@ class Report:
     def to_dict(self) -> dict:
         from dataclasses import asdict
 
-        def clean(x):
-            if isinstance(x, float) and not math.isfinite(x):
-                return None
-            if isinstance(x, dict):
-                return {k: clean(v) for k, v in x.items()}
-            if isinstance(x, list):
-                return [clean(v) for v in x]
-            return x
-
-        return clean(asdict(self))
+        return _finite_or_none(asdict(self))
 
     def table(self) -> str:
         f = lambda x: "  n/a" if not math.isfinite(x) else f"{x:5.3f}"  # noqa: E731
@@ -192,8 +183,8 @@ def evaluate_detections(ds: Dataset, detections: list[list[Detection]], detector
                   _recall_bins(found_dist, DISTANCE_BINS), _recall_bins(found_occ, OCCLUSION_BINS), by_class)
 
 
-def evaluate(detector: Detector, ds: Dataset, warmup: int = 2) -> Report:
-    """Run `detector` over every image (timing each call, image loading excluded) and score it.
+def detect_all(detector: Detector, ds: Dataset, warmup: int = 2) -> tuple[list[list[Detection]], list[float]]:
+    """Run `detector` over every image: its detections and the seconds of each call (image loading excluded).
 
     A detector with `set_background` (the classical one) gets each image's empty-scene image
     when the dataset has one (image field "background"), since each frame may have its own
@@ -212,6 +203,15 @@ def evaluate(detector: Detector, ds: Dataset, warmup: int = 2) -> Report:
         t0 = time.perf_counter()
         dets.append(detector.detect(rgb))
         times.append(time.perf_counter() - t0)
+    return dets, times
+
+
+def evaluate(detector: Detector, ds: Dataset, warmup: int = 2, detections: list | None = None) -> Report:
+    """Run `detector` over every image (`detect_all`) and score it; `detections`, when given a list, receives
+    the per-image detections (for `evaluate_ground` on the same boxes)."""
+    dets, times = detect_all(detector, ds, warmup)
+    if detections is not None:
+        detections[:] = dets
     rep = evaluate_detections(ds, dets, detector.name, operating_threshold=0.0)
     if times:
         t = np.array(times) * 1000
@@ -219,3 +219,129 @@ def evaluate(detector: Detector, ds: Dataset, warmup: int = 2) -> Report:
         rep.ms_per_frame = {"mean": float(t.mean()), "p50": float(np.percentile(t, 50)),
                             "p95": float(np.percentile(t, 95))}
     return rep
+
+
+# -- where the boxes put the vehicles on the ground ------------------------------------------------------------
+GROUND_DISTANCE_BINS = (0.0, 20.0, 40.0, 60.0, 80.0, math.inf)
+GROUND_SCORE = 0.6  # the RSU app's default score threshold: the boxes that reach its tracker
+
+
+@dataclass
+class GroundReport:
+    """How far from the true vehicle centre `geo.box_to_ground` puts each found vehicle, per class and
+    distance band, for the detector's boxes beside the true visible boxes (what any box-based method gets
+    with a perfect detector), with the heading known (a track's: the app's steady state) and searched (a
+    new track's). `nees`: the mean normalised error e^T C^-1 e under `geo.ground_fix`'s covariance C, which
+    is 2 when C is right (chi-square, 2 dof); `within_2sigma`: the share of errors inside the 2-sigma
+    ellipse (0.865 when right)."""
+    detector: str
+    score_threshold: float
+    noise: dict
+    rows: list[dict] = field(default_factory=list)  # per class, box source, heading and distance band
+    samples: list[dict] = field(default_factory=list, repr=False)  # per found vehicle
+
+    def to_dict(self, samples: bool = False) -> dict:
+        d = {"detector": self.detector, "score_threshold": self.score_threshold, "noise": self.noise,
+             "rows": self.rows}
+        if samples:
+            d["samples"] = self.samples
+        return _finite_or_none(d)
+
+    def table(self) -> str:
+        f = lambda x: "  n/a" if x is None or not math.isfinite(x) else f"{x:5.2f}"  # noqa: E731
+        lines = [f"ground error of {self.detector}'s boxes (score >= {self.score_threshold:g}, matched at IoU "
+                 f"0.5) beside the true boxes; box noise {self.noise}",
+                 f"{'class':<10} {'boxes':<9} {'heading':<8} {'range':<7} {'n':>4} {'median':>6} {'p90':>6} "
+                 f"{'NEES':>6} {'in 2s':>6}"]
+        for r in self.rows:
+            lines.append(f"{r['class']:<10} {r['boxes']:<9} {r['heading']:<8} {r['bin']:<7} {r['n']:>4} "
+                         f"{f(r['median_m']):>6} {f(r['p90_m']):>6} {f(r['nees']):>6} {f(r['within_2sigma']):>6}")
+        return "\n".join(lines)
+
+
+def _finite_or_none(x):
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _finite_or_none(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_finite_or_none(v) for v in x]
+    return x
+
+
+def ground_samples(ds: Dataset, detections: list[list[Detection]], score_threshold: float = GROUND_SCORE,
+                   noise=None, true_boxes: bool = True, searched: bool = True) -> list[dict]:
+    """One record per (found vehicle, box source, heading mode): error (m) from the true centre, and its
+    along- and across-ray parts, and the NEES under `geo.ground_fix`'s covariance. A vehicle is found when
+    a detection of its class with score >= `score_threshold` matches it at IoU 0.5 (the COCO matching of
+    `match`); vehicles flagged ignore, or without position/heading/camera in the dataset, are skipped."""
+    from rsu_app.perception.geo import BoxNoise, CameraModel, GeoError, ground_fix
+
+    noise = noise or BoxNoise()
+    out = []
+    for s, dets in zip(ds.samples, detections):
+        if not s.camera:
+            continue
+        cam = CameraModel.from_dict(s.camera)
+        for c in {t.label for t in s.truths}:
+            d = [x for x in dets if x.label == c and x.score >= score_threshold]
+            g = [t for t in s.truths if t.label == c]
+            _, gt_match = match(d, g, 0.5)
+            for t, m in zip(g, gt_match):
+                if t.ignore or t.position is None or t.heading is None:
+                    continue
+                sources = [("detector", d[m].box)] if m >= 0 else []
+                if true_boxes:
+                    sources.append(("true", t.box))
+                for src, box in sources:
+                    for mode in ("known", "searched") if searched else ("known",):
+                        try:
+                            p, C = ground_fix(box, cam, c, heading=t.heading if mode == "known" else None,
+                                              noise=noise)
+                        except (GeoError, ValueError, np.linalg.LinAlgError):
+                            continue
+                        e = p - np.asarray(t.position, float)
+                        ray = np.asarray(t.position, float) - cam.position[:2]
+                        ray /= max(np.linalg.norm(ray), 1e-9)
+                        out.append({"image": s.image_id, "class": c, "boxes": src, "heading": mode,
+                                    "distance": t.distance, "occlusion": t.occlusion,
+                                    "error_m": float(np.linalg.norm(e)), "along_m": float(e @ ray),
+                                    "across_m": float(e[0] * -ray[1] + e[1] * ray[0]),
+                                    "nees": float(e @ np.linalg.solve(C, e)),
+                                    "sigma_along_m": float(math.sqrt(ray @ C @ ray))})
+    return out
+
+
+def summarise_ground(samples: list[dict], classes=("car", "emergency")) -> list[dict]:
+    """Rows per class, box source, heading mode and distance band (and "all" bands): median and p90 error,
+    mean NEES, share within the 2-sigma ellipse (NEES <= 4.0 for 2 dof: chi2.ppf(0.865, 2))."""
+    rows = []
+    bins = list(zip(GROUND_DISTANCE_BINS[:-1], GROUND_DISTANCE_BINS[1:])) + [(0.0, math.inf)]
+    for c in classes:
+        for src in ("detector", "true"):
+            for mode in ("known", "searched"):
+                sel = [x for x in samples if x["class"] == c and x["boxes"] == src and x["heading"] == mode]
+                if not sel:
+                    continue
+                for k, (lo, hi) in enumerate(bins):
+                    b = [x for x in sel if x["distance"] is not None and lo <= x["distance"] < hi]
+                    e = np.array([x["error_m"] for x in b])
+                    n = np.array([x["nees"] for x in b])
+                    rows.append({"class": c, "boxes": src, "heading": mode,
+                                 "bin": "all" if k == len(bins) - 1 else _bin_label(lo, hi), "n": len(b),
+                                 "median_m": float(np.median(e)) if len(b) else float("nan"),
+                                 "p90_m": float(np.percentile(e, 90)) if len(b) else float("nan"),
+                                 "nees": float(n.mean()) if len(b) else float("nan"),
+                                 "within_2sigma": float(np.mean(n <= 4.0)) if len(b) else float("nan")})
+    return rows
+
+
+def evaluate_ground(ds: Dataset, detections: list[list[Detection]], detector: str = "?",
+                    score_threshold: float = GROUND_SCORE, noise=None, true_boxes: bool = True) -> GroundReport:
+    from dataclasses import asdict
+
+    from rsu_app.perception.geo import BoxNoise
+
+    noise = noise or BoxNoise()
+    samples = ground_samples(ds, detections, score_threshold, noise, true_boxes)
+    return GroundReport(detector, score_threshold, asdict(noise), summarise_ground(samples), samples)
