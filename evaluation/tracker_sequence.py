@@ -228,23 +228,32 @@ class _TrackerChain:
         return states, self.detector.seconds, t2 - t1, time.perf_counter() - t2
 
 
-def evaluate_sequence(scenario: str | Path, detector: Detector, *, chain: str = "app",
-                      settings: Settings | None = None, start: float | None = None, stop: float | None = None,
-                      rate_hz: float | None = None, camera: str | None = None, near_m: float = 60.0,
-                      min_age: float = 1.0, match_radius: float = 3.0, trajectory: Callable | None = None,
-                      tracker: Tracker | None = None, size: tuple[int, int] | None = None) -> SequenceReport:
-    """Render, detect, track and score the scenario's camera sequence (see the module docstring).
+@dataclass
+class RenderedSequence:
+    """A scenario's camera sequence rendered once, with the truth each frame is scored on; `score_sequence`
+    runs any number of detectors and operating points over it (rendering is most of an evaluation's time)."""
+    scenario: str
+    camera: str
+    rate_hz: float
+    frames: list  # master.world.camera.Frame per time step (rgb, seg, camera model)
+    truth: list[dict[str, tuple[float, float, float, float]]]  # per frame: vehicle -> centre x, y, yaw, speed
+    visible: list[set[str]]  # per frame: vehicles with >= MIN_VISIBLE_PIXELS pixels in it
+    kinds: dict[str, str]  # vehicle -> "car" / "emergency" (the scenario's [world.vehicles.*] kind)
+    intersection: dict  # what the master describes to the app
+    world: SimpleNamespace = field(repr=False)  # scene.vehicle_ids and layout.vehicles, for `detect_frame`
+    background: np.ndarray | None = field(default=None, repr=False)  # the empty scene (classical detector)
 
-    `settings` (default `Settings()`) is the app's operating point; the "tracker" chain takes only its
-    tracker section, or `tracker` when given (the "app" chain builds its tracker from the settings, as the
-    app does, and refuses `tracker`). start/stop default to the scenario's [time]; rate_hz to the camera's;
-    `size` (W, H) renders smaller frames for quick checks (the intrinsics follow)."""
-    if chain not in CHAINS:
-        raise ValueError(f"chain must be one of {', '.join(CHAINS)}, got {chain!r}")
-    if chain == "app" and tracker is not None:
-        raise ValueError("the app chain builds its tracker from `settings.tracker`, as the app does: "
-                         "pass settings, not tracker (or chain='tracker')")
-    settings = settings or Settings()
+    @property
+    def names(self) -> list[str]:
+        return list(self.kinds)
+
+
+def render_sequence(scenario: str | Path, *, start: float | None = None, stop: float | None = None,
+                    rate_hz: float | None = None, camera: str | None = None, trajectory: Callable | None = None,
+                    size: tuple[int, int] | None = None, background: bool = False) -> RenderedSequence:
+    """Render the scenario's camera at its rate from start to stop with the vehicles posed along
+    `trajectory` (default `constant_speed`); see `evaluate_sequence` for the arguments. `background`: also
+    render the scene without its vehicles (what a background-subtraction detector learns)."""
     sc = load_scenario(scenario)
     if sc.world is None or not sc.world.cameras:
         raise ValueError(f"{scenario}: the scenario has no [world] camera")
@@ -262,34 +271,15 @@ def evaluate_sequence(scenario: str | Path, detector: Detector, *, chain: str = 
         raise ValueError(f"need stop > start and rate_hz > 0, got {start}, {stop}, {rate}")
     traj = trajectory or constant_speed(sc)
     names = [n for n in sc.world.vehicles]
-    kinds = {n: sc.world.vehicles[n].kind for n in names}
-    born: dict[int, float] = {}
-    last_match: dict[str, int] = {}
-    pos_err, spd_err, hdg_err, rows, false_rows = [], [], [], [], []
-    seen = {n: 0 for n in names}
-    covered = {n: 0 for n in names}
-    labelled = {n: [0, 0] for n in names}  # scored samples, right label
-    id_switches = 0
-    t_det, t_proj, t_trk = [], [], []
+    frames, truths, visible = [], [], []
     n_frames = int(math.floor((stop - start) * rate + 1e-9)) + 1
+    empty = None
     with World(sc.world) as w:
         cam = w.cameras[spec.name]
-        model = CameraModel(cam.K, cam.R_wc, cam.position)
-        source = FrameDetector(detector, w)
-        if chain == "app":
-            runner = _AppChain(source, settings, sc.world.describe()["intersection"])
-            tcfg = runner.stage.tracker.cfg
-            op = {"score_threshold": settings.detector.score_threshold}
-        else:
-            runner = _TrackerChain(source, tracker or Tracker(tracker_config(settings)), match_radius)
-            tcfg = runner.tracker.cfg
-            op = {"score_threshold": None}
-        op.update(confirm_hits=tcfg.confirm_hits, confirm_window=tcfg.confirm_window, max_missed=tcfg.max_missed,
-                  gate=tcfg.gate, meas_std=tcfg.meas_std, accel_std=tcfg.accel_std, motion=tcfg.motion)
-        if chain == "app":
-            p = settings.perception
-            op.update(max_range_m=p.max_range_m, on_road_only=p.on_road_only, merge_radius_m=p.merge_radius_m,
-                      border_px=p.border_px)
+        if background:
+            for n in names:
+                w.pose_vehicle(n, 5000.0, 5000.0, 0.0, 0.0)
+            empty = cam.render(start).rgb.copy()
         for k in range(n_frames):
             t = start + k / rate
             truth = {}
@@ -299,55 +289,123 @@ def evaluate_sequence(scenario: str | Path, detector: Detector, *, chain: str = 
                 d = sc.world.vehicles[n].centre_offset
                 truth[n] = (x + d * math.cos(yaw), y + d * math.sin(yaw), yaw, v)
             frame = cam.render(t)
-            source.frame = frame
-            view = SimpleNamespace(camera=spec.name, frame_id=k, t=t, rgb=frame.rgb, K=frame.K, R_wc=frame.R_wc,
-                                   position=frame.position)
-            states, det_s, proj_s, trk_s = runner.step(view, t)
-            t_det.append(det_s), t_proj.append(proj_s), t_trk.append(trk_s)
-            # visible (enough pixels) and near vehicles
-            vis = {n for n in names if np.count_nonzero(frame.seg == w.scene.vehicle_ids[n]) >= MIN_VISIBLE_PIXELS}
-            cam_xy = model.position[:2]
-            near_set = {n for n in vis if math.hypot(truth[n][0] - cam_xy[0], truth[n][1] - cam_xy[1]) <= near_m}
-            # match scored tracks to vehicles: nearest first, one to one
-            pairs = sorted((math.hypot(s.x - truth[n][0], s.y - truth[n][1]), i, n)
-                           for i, s in enumerate(states) for n in names)
-            used_s, used_n = set(), set()
-            for dist, i, n in pairs:
-                if dist > match_radius or i in used_s or n in used_n:
-                    continue
-                used_s.add(i), used_n.add(n)
-                s = states[i]
-                born.setdefault(s.id, t)
-                if n in last_match and last_match[n] != s.id:
-                    id_switches += 1
-                last_match[n] = s.id
-                if n not in near_set or t - born[s.id] < min_age - 1e-9:
-                    continue
-                tx, ty, tyaw, tv = truth[n]
-                he = (float("nan") if s.heading is None
-                      else math.degrees(abs(math.remainder(s.heading - tyaw, math.tau))))
-                pos_err.append(dist), spd_err.append(s.speed - tv), hdg_err.append(he)
-                labelled[n][0] += 1
-                labelled[n][1] += s.label == kinds[n]
-                rows.append({"t": round(t, 3), "vehicle": n, "track": s.id, "x": s.x, "y": s.y, "true_x": tx,
-                             "true_y": ty, "position_error": dist, "speed": s.speed, "true_speed": tv,
-                             "heading_error_deg": he, "range": math.hypot(tx - cam_xy[0], ty - cam_xy[1]),
-                             "label": s.label, "kind": kinds[n]})
-            for i, s in enumerate(states):
-                born.setdefault(s.id, t)
-                if i not in used_s:
-                    near_n = min(names, key=lambda n: math.hypot(s.x - truth[n][0], s.y - truth[n][1]))
-                    false_rows.append({"t": round(t, 3), "track": s.id, "x": s.x, "y": s.y, "label": s.label,
-                                       "nearest": near_n,
-                                       "distance": math.hypot(s.x - truth[near_n][0], s.y - truth[near_n][1])})
-            for n in near_set:
-                seen[n] += 1
-                covered[n] += n in used_n
+            frames.append(frame)
+            truths.append(truth)
+            visible.append({n for n in names
+                            if np.count_nonzero(frame.seg == w.scene.vehicle_ids[n]) >= MIN_VISIBLE_PIXELS})
+        world = SimpleNamespace(scene=SimpleNamespace(vehicle_ids=dict(w.scene.vehicle_ids)),
+                                layout=SimpleNamespace(vehicles=dict(w.layout.vehicles)))
+    return RenderedSequence(str(scenario), spec.name, rate, frames, truths, visible,
+                            {n: sc.world.vehicles[n].kind for n in names}, sc.world.describe()["intersection"],
+                            world, empty)
+
+
+def evaluate_sequence(scenario: str | Path, detector: Detector, *, chain: str = "app",
+                      settings: Settings | None = None, start: float | None = None, stop: float | None = None,
+                      rate_hz: float | None = None, camera: str | None = None, near_m: float = 60.0,
+                      min_age: float = 1.0, match_radius: float = 3.0, trajectory: Callable | None = None,
+                      tracker: Tracker | None = None, size: tuple[int, int] | None = None) -> SequenceReport:
+    """Render, detect, track and score the scenario's camera sequence (see the module docstring).
+
+    `settings` (default `Settings()`) is the app's operating point; the "tracker" chain takes only its
+    tracker section, or `tracker` when given (the "app" chain builds its tracker from the settings, as the
+    app does, and refuses `tracker`). start/stop default to the scenario's [time]; rate_hz to the camera's;
+    `size` (W, H) renders smaller frames for quick checks (the intrinsics follow)."""
+    _check_chain(chain, tracker)
+    seq = render_sequence(scenario, start=start, stop=stop, rate_hz=rate_hz, camera=camera, trajectory=trajectory,
+                          size=size)
+    return score_sequence(seq, detector, chain=chain, settings=settings, near_m=near_m, min_age=min_age,
+                          match_radius=match_radius, tracker=tracker)
+
+
+def _check_chain(chain: str, tracker) -> None:
+    if chain not in CHAINS:
+        raise ValueError(f"chain must be one of {', '.join(CHAINS)}, got {chain!r}")
+    if chain == "app" and tracker is not None:
+        raise ValueError("the app chain builds its tracker from `settings.tracker`, as the app does: "
+                         "pass settings, not tracker (or chain='tracker')")
+
+
+def score_sequence(seq: RenderedSequence, detector: Detector, *, chain: str = "app",
+                   settings: Settings | None = None, near_m: float = 60.0, min_age: float = 1.0,
+                   match_radius: float = 3.0, tracker: Tracker | None = None) -> SequenceReport:
+    """Detect, track and score a rendered sequence (see the module docstring and `evaluate_sequence`)."""
+    _check_chain(chain, tracker)
+    settings = settings or Settings()
+    names, kinds = seq.names, seq.kinds
+    born: dict[int, float] = {}
+    last_match: dict[str, int] = {}
+    pos_err, spd_err, hdg_err, rows, false_rows = [], [], [], [], []
+    seen = {n: 0 for n in names}
+    covered = {n: 0 for n in names}
+    labelled = {n: [0, 0] for n in names}  # scored samples, right label
+    id_switches = 0
+    t_det, t_proj, t_trk = [], [], []
+    n_frames, rate = len(seq.frames), seq.rate_hz
+    source = FrameDetector(detector, seq.world)
+    if chain == "app":
+        runner = _AppChain(source, settings, seq.intersection)
+        tcfg = runner.stage.tracker.cfg
+        op = {"score_threshold": settings.detector.score_threshold}
+    else:
+        runner = _TrackerChain(source, tracker or Tracker(tracker_config(settings)), match_radius)
+        tcfg = runner.tracker.cfg
+        op = {"score_threshold": None}
+    op.update(confirm_hits=tcfg.confirm_hits, confirm_window=tcfg.confirm_window, max_missed=tcfg.max_missed,
+              gate=tcfg.gate, meas_std=tcfg.meas_std, accel_std=tcfg.accel_std, motion=tcfg.motion)
+    if chain == "app":
+        p = settings.perception
+        op.update(max_range_m=p.max_range_m, track_range_m=p.track_range_m, on_road_only=p.on_road_only,
+                  merge_radius_m=p.merge_radius_m, border_px=p.border_px, ground_covariance=p.ground_covariance)
+    for k, (frame, truth, vis) in enumerate(zip(seq.frames, seq.truth, seq.visible)):
+        t = frame.t
+        source.frame = frame
+        view = SimpleNamespace(camera=seq.camera, frame_id=k, t=t, rgb=frame.rgb, K=frame.K, R_wc=frame.R_wc,
+                               position=frame.position)
+        states, det_s, proj_s, trk_s = runner.step(view, t)
+        t_det.append(det_s), t_proj.append(proj_s), t_trk.append(trk_s)
+        cam_xy = np.asarray(frame.position)[:2]
+        near_set = {n for n in vis if math.hypot(truth[n][0] - cam_xy[0], truth[n][1] - cam_xy[1]) <= near_m}
+        # match scored tracks to vehicles: nearest first, one to one
+        pairs = sorted((math.hypot(s.x - truth[n][0], s.y - truth[n][1]), i, n)
+                       for i, s in enumerate(states) for n in names)
+        used_s, used_n = set(), set()
+        for dist, i, n in pairs:
+            if dist > match_radius or i in used_s or n in used_n:
+                continue
+            used_s.add(i), used_n.add(n)
+            s = states[i]
+            born.setdefault(s.id, t)
+            if n in last_match and last_match[n] != s.id:
+                id_switches += 1
+            last_match[n] = s.id
+            if n not in near_set or t - born[s.id] < min_age - 1e-9:
+                continue
+            tx, ty, tyaw, tv = truth[n]
+            he = (float("nan") if s.heading is None
+                  else math.degrees(abs(math.remainder(s.heading - tyaw, math.tau))))
+            pos_err.append(dist), spd_err.append(s.speed - tv), hdg_err.append(he)
+            labelled[n][0] += 1
+            labelled[n][1] += s.label == kinds[n]
+            rows.append({"t": round(t, 3), "vehicle": n, "track": s.id, "x": s.x, "y": s.y, "true_x": tx,
+                         "true_y": ty, "position_error": dist, "speed": s.speed, "true_speed": tv,
+                         "heading_error_deg": he, "range": math.hypot(tx - cam_xy[0], ty - cam_xy[1]),
+                         "label": s.label, "kind": kinds[n]})
+        for i, s in enumerate(states):
+            born.setdefault(s.id, t)
+            if i not in used_s:
+                near_n = min(names, key=lambda n: math.hypot(s.x - truth[n][0], s.y - truth[n][1]))
+                false_rows.append({"t": round(t, 3), "track": s.id, "x": s.x, "y": s.y, "label": s.label,
+                                   "nearest": near_n,
+                                   "distance": math.hypot(s.x - truth[near_n][0], s.y - truth[near_n][1])})
+        for n in near_set:
+            seen[n] += 1
+            covered[n] += n in used_n
     ms = lambda v: float(np.median(v) * 1000) if v else float("nan")  # noqa: E731
     duration = n_frames / rate
     false_tracks = len(false_rows)
     return SequenceReport(
-        scenario=str(scenario), detector=getattr(detector, "name", "?"), chain=chain, operating_point=op,
+        scenario=seq.scenario, detector=getattr(detector, "name", "?"), chain=chain, operating_point=op,
         frames=n_frames, rate_hz=rate, duration_s=duration, near_m=near_m, min_age=min_age, samples=len(pos_err),
         position_error=_stats(pos_err), speed_error=_stats(spd_err),
         heading_error=_stats([h for h in hdg_err if math.isfinite(h)]),
