@@ -142,7 +142,8 @@ class TrackerSettings:
     max_missed: int = field(default=5, metadata=_key(
         "a confirmed track stops being broadcast after this many processed frames without a detection",
         low=0, high=1000))
-    meas_std: float = field(default=0.7, metadata=_key("m: per-axis error of a ground position", positive=True))
+    meas_std: float = field(default=0.7, metadata=_key(
+        "m: per-axis error of a ground position when perception.ground_covariance is off", positive=True))
     accel_std: float = field(default=3.0, metadata=_key("m/s^2: manoeuvring noise", positive=True))
     init_speed_std: float = field(default=20.0, metadata=_key(
         "m/s: velocity std of a new track (its prior is standing still); wide, since a vehicle often arrives "
