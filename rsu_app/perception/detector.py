@@ -28,11 +28,6 @@ DEFAULT_THREADS = 1
 # the shipped weights (rsu_app/perception/weights/RECIPE.md says how they were made)
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 DEFAULT_WEIGHTS = {"torch": WEIGHTS_DIR / "detector.pt", "onnx": WEIGHTS_DIR / "detector.onnx"}
-# The second round's network, trained on the wider `wide` dataset: tighter boxes and a higher held-out AP,
-# but not the default yet: through geo.box_to_ground its emergency-vehicle ground points at 20-60 m are
-# worse on the case study, though its boxes overlap the truth better on average (RECIPE.md). Pass
-# weights=WIDE_WEIGHTS["torch"] (or the onnx file) to use it.
-WIDE_WEIGHTS = {"torch": WEIGHTS_DIR / "detector-wide.pt", "onnx": WEIGHTS_DIR / "detector-wide.onnx"}
 
 
 def default_weights(backend: str) -> Path:
