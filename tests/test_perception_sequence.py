@@ -19,12 +19,16 @@ pytest.importorskip("pybullet")
 torch = pytest.importorskip("torch")
 
 from master.world.ground_truth import mask_box  # noqa: E402
+from rsu_app.config import Settings  # noqa: E402
 from rsu_app.perception import make_detector  # noqa: E402
 from rsu_app.perception.detector import Detection  # noqa: E402
 from evaluation.tracker_sequence import evaluate_sequence  # noqa: E402
 
 SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ima_world.toml"
-STRETCH = dict(start=3.0, stop=5.5, min_age=1.0)  # the ev is within 60 m of the camera from t = 2.8 s
+# The app runs from t = 0 and starts tracks out to perception.track_range_m (90 m): the ev is within 90 m of
+# the camera from t = 1.0 s and within the 60 m scored (and broadcast) from t = 2.8 s, so the stretch starts
+# where its track would.
+STRETCH = dict(start=1.0, stop=5.5, min_age=1.0)
 KINDS = {"cav": "car", "ev": "emergency"}  # scenarios/ima_world.toml [world.vehicles.*] kind
 SWAPPED = {"car": "emergency", "emergency": "car"}
 torch.set_num_threads(1)
@@ -59,16 +63,17 @@ def oracle_report(fmu_dir):
 
 def test_projection_and_tracking_alone_are_accurate(oracle_report):
     rep = oracle_report
-    assert rep.chain == "app" and rep.operating_point["score_threshold"] == 0.6, rep.table()
-    assert rep.frames == 26 and rep.samples >= 26, rep.table()  # measured 28
-    # measured: position median 0.108 p90 0.160 m, speed median 0.045 m/s, heading median 0.22 deg
+    assert rep.chain == "app" and rep.operating_point["score_threshold"] == Settings().detector.score_threshold
+    assert rep.operating_point["track_range_m"] == Settings().perception.track_range_m, rep.table()
+    assert rep.frames == 46 and rep.samples >= 48, rep.table()  # measured 52
+    # measured: position median 0.112 p90 0.172 m, speed median 0.054 m/s, heading median 0.18 deg, coverage
+    # cav 0.957 (its first second has no track old enough) ev 1.0
     assert rep.position_error["median"] <= 0.2 and rep.position_error["p90"] <= 0.3, rep.table()
     assert rep.speed_error["median"] <= 0.1 and rep.heading_error["median"] <= 0.5, rep.table()
-    # measured 0.923 for both (24 of 26 frames: a track is confirmed on the third detection)
-    assert min(rep.coverage.values()) >= 0.9, rep.table()
+    assert rep.coverage["cav"] >= 0.9 and rep.coverage["ev"] >= 0.95, rep.table()
     assert rep.false_tracks == 0 and rep.false_rows == [] and rep.false_per_10s == 0.0, rep.table()
     assert rep.id_switches == 0 and rep.class_errors == 0, rep.table()
-    assert rep.duration_s == pytest.approx(2.6), rep.table()
+    assert rep.duration_s == pytest.approx(4.6), rep.table()
     vehicles = {r["vehicle"] for r in rep.rows}
     assert vehicles == {"cav", "ev"}, vehicles
 
@@ -95,18 +100,21 @@ def test_a_biased_box_shows_in_the_position_error(fmu_dir):
     assert len(rep.false_rows) == rep.false_tracks
 
 
-def test_shipped_detector_tracks_both_vehicles(fmu_dir):
-    """The default weights through the app's chain, held to what RECIPE.md and the README claim for the case
-    study (whole sequence: position 0.24 m, speed 0.21 m/s, heading 0.25 deg, medians) with a margin for
-    this 2.5 s stretch. Measured on the stretch: 28 samples, 0.224 m, 0.20 m/s, 0.11 deg, coverage 0.923 for
-    both, no false track-frame, id switch or class error (the wide weights: 0.151 m, 0.236 m/s, 0.35 deg)."""
-    rep = evaluate_sequence(SCENARIO, make_detector("torch", threads=1), **STRETCH)
+def test_shipped_detector_tracks_both_vehicles_through_the_case_study(fmu_dir):
+    """The shipped weights through the app's chain at its defaults over the whole case-study sequence (0-8 s),
+    held to what RECIPE.md and the README claim. Measured: 86 track-frames scored, position 0.214 m, speed
+    0.159 m/s, heading 0.35 deg (medians), coverage cav 0.986 ev 0.947, 2 false track-frames (the cav's own
+    track 3.2-3.5 m off at 7.0-7.1 s), no id switch or class error. Margins: about 15 % on the medians, one
+    frame on coverage and false track-frames. The issue's goals of >= 0.95 coverage and <= 1 false track-frame
+    per 10 s are not met (RECIPE.md says by how much); this test holds what is claimed."""
+    rep = evaluate_sequence(SCENARIO, make_detector("torch", threads=1))
     print(rep.table())
-    assert rep.chain == "app" and rep.samples >= 26, rep.table()
-    assert rep.position_error["median"] <= 0.25, rep.table()
-    assert rep.speed_error["median"] <= 0.3 and rep.heading_error["median"] <= 0.5, rep.table()
-    assert min(rep.coverage.values()) >= 0.9 and rep.id_switches == 0, rep.table()
-    assert rep.false_tracks == 0 and rep.class_errors == 0, rep.table()
+    assert rep.chain == "app" and rep.frames == 81 and rep.samples >= 80, rep.table()
+    assert rep.position_error["median"] <= 0.25 and rep.speed_error["median"] <= 0.19, rep.table()
+    assert rep.heading_error["median"] <= 0.45, rep.table()
+    assert rep.coverage["cav"] >= 0.97 and rep.coverage["ev"] >= 0.92, rep.table()  # 69/70, 36/38 measured
+    assert rep.false_tracks <= 3 and rep.id_switches == 0, rep.table()
+    assert rep.class_errors == 0 and rep.class_accuracy == {"cav": 1.0, "ev": 1.0}, rep.table()
 
 
 def test_cli_eval_tracker(fmu_dir, capsys, tmp_path):
@@ -123,7 +131,7 @@ def test_cli_eval_tracker(fmu_dir, capsys, tmp_path):
         assert set(rep["coverage"]) == {"cav", "ev"} and "rows" not in rep and "false_rows" not in rep, rep
         assert rep["position_error"]["median"] is not None and rep["position_error"]["median"] < 1.0, rep
         assert rep["duration_s"] == pytest.approx(0.7) and rep["class_errors"] == 0, rep
-    assert reports["app"]["operating_point"]["score_threshold"] == 0.6
+    assert reports["app"]["operating_point"]["score_threshold"] == Settings().detector.score_threshold
     assert reports["tracker"]["operating_point"]["score_threshold"] is None
     assert main(["eval-tracker", *short, "--confirm-hits", "2", "--gate", "9.21"]) == 0
     op = json.loads(capsys.readouterr().out)["operating_point"]

