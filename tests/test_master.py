@@ -293,8 +293,11 @@ def test_a_signal_stops_cleanly_and_keeps_rows(write_scenario, tmp_path, sig):
     path = write_scenario('[time]\nstop = 30.0\nstep = 0.01\nmode = "realtime"\n[fmus.car]\nfmu = "{vehicle}"\n'
                           '[fmus.car.parameters]\nv0 = 10.0\n')
     out = tmp_path / "run"
+    # as from a terminal: where the test run itself was started with SIGINT ignored (`(make test &)` in a
+    # script), the child would inherit that and never see Ctrl-C
     proc = subprocess.Popen([sys.executable, "-m", "master.cli", "run", str(path), "--out", str(out), "--quiet"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 60
     while not (out / "timeseries.csv").exists() or (out / "timeseries.csv").stat().st_size < 2000:
         assert time.monotonic() < deadline and proc.poll() is None, proc.communicate()
