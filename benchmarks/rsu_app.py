@@ -326,7 +326,8 @@ def main(argv=None) -> int:
             print("".join(f"{str(r['point'][k]):>15}" for k in keys) + f"{r['false_track_frames']:>7}"
                   f"{r['id_switches']:>5}{r['min_coverage']:>10.3f}{r['position_median_m']:>9.3f}")
         print(f"selected: {t['selected']}")
-        print(f"the app's defaults: {t['defaults']} ({'the selected point' if t['defaults_are_selected'] else 'NOT the selected point'})")
+        which = "the selected point" if t["defaults_are_selected"] else "NOT the selected point"
+        print(f"the app's defaults: {t['defaults']} ({which})")
         for name in ("selected", "defaults"):
             c = t[f"case_study_at_{name}"]
             cover = " ".join(f"{k} {v:.3f}" for k, v in c["coverage"].items())

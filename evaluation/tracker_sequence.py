@@ -62,6 +62,7 @@ from master.world.dataset import MIN_VISIBLE_PIXELS  # fewer visible pixels is n
 from master.world.world import World
 from rsu_app.config import Settings
 from rsu_app.perception.detector import Detector
+from rsu_app.perception.evaluate import finite_or_none
 from rsu_app.perception.geo import CameraModel, GeoError, box_to_ground, rough_ground_point
 from rsu_app.perception.tracker import GroundDetection, Tracker
 from rsu_app.perception_stage import PerceptionStage, tracker_config
@@ -146,7 +147,7 @@ class SequenceReport:
         if not rows:
             d.pop("rows")
             d.pop("false_rows")
-        return _clean(d)
+        return finite_or_none(d)
 
     def table(self) -> str:
         f = lambda d: " ".join(f"{k} {v:.3f}" for k, v in d.items())  # noqa: E731
@@ -170,16 +171,6 @@ class SequenceReport:
             lines.append(f"  false: t {r['t']:.2f} s track {r['track']} ({r['label']}) at ({r['x']:.1f}, "
                          f"{r['y']:.1f}), {r['distance']:.1f} m from {r['nearest']}")
         return "\n".join(lines)
-
-
-def _clean(x):
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_clean(v) for v in x]
-    return x
 
 
 def _stats(v) -> dict[str, float]:

@@ -7,8 +7,8 @@ track when there is one: a tighter and cheaper fit), with the covariance of
 that fit (a far vehicle's point is uncertain along the viewing ray, a box cut
 by the border in the direction it was cut: the tracker weighs each point by
 it), and drops ground points outside the detection zone (beyond
-`track_range_m`, or off the roads of the intersection). It returns a `FrameResult` and leaves the tracker alone: the
-tracker learns of a frame's detections only when they are *ready* in simulated
+`track_range_m`, or off the roads of the intersection). It returns a
+`FrameResult` and leaves the tracker alone: the tracker learns of a frame's detections only when they are *ready* in simulated
 time (`apply`), so a BSM sent before then cannot know them.
 
 Two rules keep the tracker from inventing vehicles (every false track is a
@@ -23,8 +23,8 @@ near it but never start one.
 A confirmed track whose predicted position has left every camera's view (or
 the detection zone: beyond `max_range_m`) is not broadcast (`broadcastable`);
 beyond `max_range_m` its positions are not good enough to send, and out of view
-nothing can confirm it any more, and coasting on a straight line after a vehicle turned out of
-sight is how a real track becomes a ghost.
+nothing can confirm it any more, and coasting on a straight line after a
+vehicle turned out of sight is how a real track becomes a ghost.
 
 `apply(result)` folds the detections into the tracker at the frame's time and
 remembers, per track, the stamps of the last frame that saw it: the BSMs of a
@@ -103,7 +103,7 @@ class DetectionZone:
     Two ranges: a track is broadcast only within `max_range_m`, where box-based positions are good enough
     to send; ground points count out to `track_range_m` (default the same), so that a vehicle arriving
     from afar enters `max_range_m` with its track already confirmed and settled instead of starting one
-    there (3 detections: 0.3 s of a 60 km/h vehicle without a BSM)."""
+    there (tracker.confirm_hits detections of a 60 km/h vehicle, 1.7 m each, without a BSM)."""
 
     def __init__(self, max_range_m: float, intersection: dict | None, on_road_only: bool, margin_m: float,
                  track_range_m: float | None = None):

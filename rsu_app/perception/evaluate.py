@@ -101,7 +101,7 @@ class Report:
     def to_dict(self) -> dict:
         from dataclasses import asdict
 
-        return _finite_or_none(asdict(self))
+        return finite_or_none(asdict(self))
 
     def table(self) -> str:
         f = lambda x: "  n/a" if not math.isfinite(x) else f"{x:5.3f}"  # noqa: E731
@@ -245,7 +245,7 @@ class GroundReport:
              "rows": self.rows}
         if samples:
             d["samples"] = self.samples
-        return _finite_or_none(d)
+        return finite_or_none(d)
 
     def table(self) -> str:
         f = lambda x: "  n/a" if x is None or not math.isfinite(x) else f"{x:5.2f}"  # noqa: E731
@@ -259,13 +259,14 @@ class GroundReport:
         return "\n".join(lines)
 
 
-def _finite_or_none(x):
+def finite_or_none(x):
+    """x with every non-finite float (in dicts and lists too) as None: JSON has no NaN or inf."""
     if isinstance(x, float) and not math.isfinite(x):
         return None
     if isinstance(x, dict):
-        return {k: _finite_or_none(v) for k, v in x.items()}
+        return {k: finite_or_none(v) for k, v in x.items()}
     if isinstance(x, list):
-        return [_finite_or_none(v) for v in x]
+        return [finite_or_none(v) for v in x]
     return x
 
 
