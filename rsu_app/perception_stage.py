@@ -18,10 +18,16 @@ the front and the whole of a long vehicle), the best-scored kept; and a box cut
 by the image border (within `border_px`, or a tenth of its extent: the
 detector's box of a vehicle leaving the picture often stops short of it;
 `geo.cut_edges`), whose ground point is the least reliable, may update a track
-near it but never start one.
+near it but never start one. A box near a track whose predicted outline
+(`geo.outline`, the class's typical size at the track's position and heading)
+reaches past the border is fitted as cut on those sides even where it stops
+short of the border: a vehicle mostly out of the picture gets a box well
+inside it (a car leaving under the case study's pole: 55 px short), and fitting
+that box's edge as where the car ends put it 2-4 m off.
 
-A confirmed track whose predicted position has left every camera's view (or
-the detection zone: beyond `max_range_m`) is not broadcast (`broadcastable`);
+A confirmed track whose predicted position has left every camera's view and
+that no detection updated in the last frame (or one outside the detection
+zone: beyond `max_range_m`) is not broadcast (`broadcastable`);
 beyond `max_range_m` its positions are not good enough to send, and out of view
 nothing can confirm it any more, and coasting on a straight line after a
 vehicle turned out of sight is how a real track becomes a ghost.
@@ -49,7 +55,8 @@ import numpy as np
 
 from bridges.geo import GeoError
 from rsu_app.perception.detector import Detection, DetectorError
-from rsu_app.perception.geo import BoxNoise, CameraModel, box_to_ground, cut_edges, ground_fix, rough_ground_point
+from rsu_app.perception.geo import (BoxNoise, CameraModel, box_to_ground, cut_edges, ground_fix, leaving_edges, outline,
+                                    rough_ground_point)
 from rsu_app.perception.tracker import GroundDetection, Tracker, TrackerConfig, TrackerError, TrackState
 
 log = logging.getLogger(__name__)
@@ -175,18 +182,25 @@ class PerceptionStage:
         self.views: dict[str, tuple[CameraModel, int, int]] = {}  # camera -> (model, width, height), last seen
         self.suppressed_out_of_view = 0
 
-    def _ground(self, det: Detection, camera: CameraModel,
-                prior: list[TrackState]) -> tuple[float, float, tuple[float, float, float] | None]:
+    def _ground(self, det: Detection, camera: CameraModel, prior: list[TrackState],
+                size: tuple[int, int]) -> tuple[float, float, tuple[float, float, float] | None]:
         """The box's ground point and, with `noise`, its covariance (var_x, cov_xy, var_y); the heading of
-        the nearest track with one (tighter, and ~6x cheaper than searching the heading too)."""
+        the nearest track with one (tighter, and ~6x cheaper than searching the heading too), and the sides
+        on which that track's predicted outline leaves the picture (see the module docstring)."""
         rx, ry = rough_ground_point(det.box, camera, det.label)
         near = [s for s in prior if s.heading is not None and math.hypot(s.x - rx, s.y - ry) < HEADING_RADIUS + 2.0]
-        heading = min(near, key=lambda s: math.hypot(s.x - rx, s.y - ry)).heading if near else None
+        track = min(near, key=lambda s: math.hypot(s.x - rx, s.y - ry)) if near else None
+        heading, cut = None, None
+        if track is not None:
+            heading = track.heading
+            box = outline(track.x, track.y, track.heading, camera, det.label)
+            cut = leaving_edges(box, *size) if box is not None else None
         border = max(self.border_px, 1.0)
         if self.noise is None:
-            gx, gy = box_to_ground(det.box, camera, det.label, heading=heading, border_px=border)
+            gx, gy = box_to_ground(det.box, camera, det.label, heading=heading, border_px=border, cut=cut)
             return float(gx), float(gy), None
-        (gx, gy), C = ground_fix(det.box, camera, det.label, heading=heading, noise=self.noise, border_px=border)
+        (gx, gy), C = ground_fix(det.box, camera, det.label, heading=heading, noise=self.noise, border_px=border,
+                                 cut=cut)
         return float(gx), float(gy), (float(C[0, 0]), float(C[0, 1]), float(C[1, 1]))
 
     def process(self, frame, t_now: float) -> FrameResult | None:
@@ -233,7 +247,7 @@ class PerceptionStage:
         """One box on the ground as a detection for the tracker, or the reason it is not one (the zone, the
         duplicate and the border rules, against the frame's better-scored boxes already in `ground`)."""
         try:
-            gx, gy, cov = self._ground(det, camera, prior)
+            gx, gy, cov = self._ground(det, camera, prior, size)
         except (GeoError, ValueError, np.linalg.LinAlgError) as exc:
             log.debug("box %s: no ground point: %s", det.box, exc)
             return "no ground point"
@@ -257,13 +271,15 @@ class PerceptionStage:
         return False
 
     def broadcastable(self, states: list[TrackState]) -> list[TrackState]:
-        """The confirmed tracks worth a BSM: still in a camera's view and in the detection zone."""
+        """The confirmed tracks worth a BSM: in the detection zone and still in a camera's view: their centre
+        in a picture, or a detection in the last frame (a vehicle leaving the picture is seen until its
+        last pixels go, long after its centre has left)."""
         out = []
         for s in states:
             views_known = bool(self.views)
             zone_ok = not views_known or any(
                 self.zone.reason_to_reject(s.x, s.y, cam.position[:2]) is None for cam, _, _ in self.views.values())
-            if views_known and not (zone_ok and self.in_view(s.x, s.y)):
+            if views_known and not (zone_ok and (s.missed == 0 or self.in_view(s.x, s.y))):
                 self.suppressed_out_of_view += 1
                 continue
             out.append(s)

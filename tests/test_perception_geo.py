@@ -8,7 +8,7 @@ import pytest
 
 from bridges.geo import GeoOrigin
 from rsu_app.perception.geo import (VEHICLE_SIZE, BoxNoise, CameraModel, GeoError, box_to_ground, cut_edges,
-                                    ground_fix, near_ground_point)
+                                    ground_fix, leaving_edges, near_ground_point, outline)
 
 pytest.importorskip("pybullet")
 
@@ -242,6 +242,30 @@ def test_an_edge_on_the_border_says_only_where_the_vehicle_leaves_the_picture():
     assert cut_edges((100, 100, 200, 476), 640, 480, 2.0).tolist() == [False, False, False, True]  # 4 < 37.6 px
     assert cut_edges((0.5, 100, 10, 110), 640, 480, 2.0).tolist() == [True, False, False, False]
     assert cut_edges((3, 100, 13, 110), 640, 480, 2.0).tolist() == [False] * 4  # 3 px > max(2, 1)
+
+
+def test_edges_a_predicted_outline_says_are_cut_decide_the_fit_where_the_box_stops_short():
+    """A car 55 % out of the picture at its bottom-right: its exact clipped box, then the same box stopping
+    30 % short of both borders (what detectors give). Fitted as the car's ends, the short edges put it metres
+    off; with the edges the car's predicted `outline` takes past the border marked `cut`, the fit keeps to
+    the other two and lands within half a metre, as with the exact box."""
+    cam = _case_camera()
+    x, y, yaw = 1.75, 7.0, math.pi / 2
+    whole = outline(x, y, yaw, cam, "car")
+    assert np.allclose(whole, _exact_box(cam, x, y, yaw, VEHICLE_SIZE["car"]))
+    leaving = leaving_edges(whole, 640, 480)
+    assert leaving.tolist() == [False, False, True, True], whole
+    clipped = np.minimum(whole, [640, 480, 640, 480])
+    short = clipped - np.array([0, 0, 0.3 * (clipped[2] - clipped[0]), 0.3 * (clipped[3] - clipped[1])])
+    err = lambda box, cut: float(np.hypot(*(box_to_ground(box, cam, "car", heading=yaw, border_px=2.0, cut=cut)  # noqa: E731
+                                           - [x, y])))
+    assert err(clipped, None) < 0.5 and err(short, leaving) < 0.5, (err(clipped, None), err(short, leaving))
+    assert err(short, None) > 2.0, err(short, None)
+    p, C = ground_fix(short, cam, "car", heading=yaw, border_px=2.0, cut=leaving)
+    assert np.hypot(*(p - [x, y])) < 0.5 and np.isfinite(C).all()
+    assert outline(8.0, 8.0, math.pi / 4, cam, "car") is None  # straddles the camera plane: no box describes it
+    with pytest.raises(ValueError, match="4 flags"):
+        box_to_ground(short, cam, "car", heading=yaw, cut=[True, False])
 
 
 @pytest.mark.parametrize("kw, word", [(dict(edge_px=-1.0), "edge_px"), (dict(size_rel=math.nan), "size_rel"),

@@ -703,3 +703,52 @@ def test_the_apps_horizon_is_the_next_input_time():
     app.ingest = object()
     assert app._horizon(Tick(5, 0.05, 0.01)) == pytest.approx(0.06)  # a camera: the master's next step
     assert app._horizon(Tick(5, 0.05)) is None  # a master that sends no step: no work ahead
+
+
+class ShortOracle(Oracle):
+    """The oracle's boxes, but a box cut by the picture's right or bottom border stops short of it by 30 % of
+    its extent, as the shipped detector's boxes of a car leaving under the case study's pole do (55 px short
+    of the right border at 6.7 s)."""
+
+    def detect(self, rgb: Pixels):
+        out = []
+        for d in super().detect(rgb):
+            u0, v0, u1, v1 = d.box
+            u1 = u1 - 0.3 * (u1 - u0) if u1 >= 640.0 else u1
+            v1 = v1 - 0.3 * (v1 - v0) if v1 >= 480.0 else v1
+            out.append(Detection((u0, v0, u1, v1), d.label, d.score))
+        self.seen[rgb.t] = out
+        return out
+
+
+def _leaving_errors(stage, vehicle: Vehicle, stop: float) -> tuple[list[float], list[float]]:
+    """(the broadcast track's distance from the vehicle's centre per frame it has one, the frame times the
+    oracle boxed the vehicle but nothing was broadcast within 3 m of it) over 10 Hz frames to `stop`."""
+    errors, uncovered = [], []
+    for k in range(int(round(stop * 10)) + 1):
+        t = k / 10
+        stage.apply([stage.process(FakeFrame("rsu_cam", k, t, Pixels(t, [vehicle])), t)])
+        x, y = vehicle.at(t)  # the oracle's boxes are of a box centred there
+        d = [math.hypot(s.x - x, s.y - y) for s in stage.broadcastable(stage.tracker.predict(t))]
+        errors.extend(d)
+        if stage.detector.seen[t] and t >= 1.0 and not any(e < 3.0 for e in d):
+            uncovered.append(t)
+    return errors, uncovered
+
+
+def test_a_vehicle_leaving_under_the_pole_is_placed_by_what_is_left_of_it(monkeypatch):
+    """A car passing close under the camera pole leaves at the picture's bottom-right, and the detector's box
+    stops short of the border: fitted as the car's end, that edge pulls its ground point 2-4 m back (the
+    case study's cav did this: two false track-frames). The track's predicted outline reaching past the
+    border marks those edges cut, the fit uses the others, and the track stays on the car, broadcast while
+    the detector still boxes it though its centre has left the picture."""
+    from rsu_app.config import Settings
+    import rsu_app.perception_stage as ps
+
+    car = Vehicle(1.75, -45.0, math.pi / 2, 8.333)
+    errors, uncovered = _leaving_errors(PerceptionStage.from_settings(ShortOracle(), Settings(), INTERSECTION),
+                                        car, 7.5)
+    assert max(errors) < 0.6 and not uncovered, (max(errors), uncovered)  # measured 0.21 m
+    monkeypatch.setattr(ps, "leaving_edges", lambda box, w, h: np.zeros(4, bool))  # the box alone decides
+    errors, _ = _leaving_errors(PerceptionStage.from_settings(ShortOracle(), Settings(), INTERSECTION), car, 7.5)
+    assert max(errors) > 2.0, max(errors)  # measured 4.7 m

@@ -167,18 +167,42 @@ def cut_edges(box, width: float, height: float, border_px: float = 1.0) -> np.nd
     return np.array([u0 <= mu, v0 <= mv, u1 >= width - mu, v1 >= height - mv])
 
 
-def _clipped(box: np.ndarray, camera: CameraModel, border_px: float) -> np.ndarray:
-    """`cut_edges` in the camera's picture (principal point at the image centre)."""
-    return cut_edges(box, 2 * camera.K[0, 2], 2 * camera.K[1, 2], border_px)
+def _clipped(box: np.ndarray, camera: CameraModel, border_px: float, cut=None) -> np.ndarray:
+    """`cut_edges` in the camera's picture (principal point at the image centre), or'ed with `cut`: edges
+    known to be cut whatever the box shows (see `box_to_ground`)."""
+    clipped = cut_edges(box, 2 * camera.K[0, 2], 2 * camera.K[1, 2], border_px)
+    if cut is not None:
+        cut = np.asarray(cut, dtype=bool)
+        if cut.shape != (4,):
+            raise ValueError(f"cut must be 4 flags (u0, v0, u1, v1), got shape {cut.shape}")
+        clipped = clipped | cut
+    return clipped
 
 
-def _residual_fn(box: np.ndarray, camera: CameraModel, yaw: float, dims, border_px: float = 1.0):
+def outline(x: float, y: float, yaw: float, camera: CameraModel, label: str = "car",
+            size: tuple[float, ...] | None = None) -> np.ndarray | None:
+    """The image box (u0, v0, u1, v1) of a vehicle of the class's typical size (or `size`) centred at (x, y)
+    with heading yaw, unclipped (it may reach past the picture's border); None when part of it is behind
+    the camera (no box describes that)."""
+    dims = size if size is not None else VEHICLE_SIZE.get(label, VEHICLE_SIZE["car"])
+    uv, depth = camera.project(_box_corners(x, y, yaw, *dims))
+    if np.any(depth <= 0.05):
+        return None
+    return np.concatenate([uv.min(axis=0), uv.max(axis=0)])
+
+
+def leaving_edges(box, width: float, height: float) -> np.ndarray:
+    """Which edges (u0, v0, u1, v1) of an unclipped image box (`outline`) lie past a width x height
+    picture's border: where a vehicle there leaves the picture."""
+    u0, v0, u1, v1 = (float(b) for b in box)
+    return np.array([u0 < 0.0, v0 < 0.0, u1 > width, v1 > height])
+
+
+def _residual_fn(box: np.ndarray, camera: CameraModel, yaw: float, dims, clipped: np.ndarray):
     """The fit's residual r(p) over the centre p = (x, y) for one heading and size: (projected box - box) /
-    scale per edge (u0, v0, u1, v1). An edge of `box` within `border_px` of the image border is where the
-    vehicle leaves the picture: there the projection only has to reach at least as far out (residual 0
-    when it does)."""
+    scale per edge (u0, v0, u1, v1). A `clipped` edge (`_clipped`) is where the vehicle leaves the picture:
+    there the projection only has to reach at least as far out (residual 0 when it does)."""
     scale = max(box[2] - box[0], box[3] - box[1], 1.0)
-    clipped = _clipped(box, camera, border_px)
     outward = np.array([-1.0, -1.0, 1.0, 1.0])  # the direction in which each edge leaves the image
 
     # the heading is fixed within one fit: rotate the corners once, then only translate them,
@@ -201,12 +225,12 @@ def _residual_fn(box: np.ndarray, camera: CameraModel, yaw: float, dims, border_
     return residual
 
 
-def _fit(box: np.ndarray, camera: CameraModel, start: np.ndarray, yaw: float, dims, border_px: float = 1.0):
+def _fit(box: np.ndarray, camera: CameraModel, start: np.ndarray, yaw: float, dims, clipped: np.ndarray):
     """Centre (x, y) whose projected 3D box best matches `box` at heading yaw, the squared cost, and the
     residual's Jacobian there (4x2, in the residual's units: pixels / scale)."""
     from scipy.optimize import least_squares
 
-    r = least_squares(_residual_fn(box, camera, yaw, dims, border_px), start, method="trf", diff_step=1e-4,
+    r = least_squares(_residual_fn(box, camera, yaw, dims, clipped), start, method="trf", diff_step=1e-4,
                       max_nfev=60)
     return r.x, float(np.sum(r.fun ** 2)), r.jac
 
@@ -223,23 +247,26 @@ def rough_ground_point(box, camera: CameraModel, label: str = "car", size: tuple
 
 
 def box_to_ground(box, camera: CameraModel, label: str = "car", heading: float | None = None,
-                  size: tuple[float, ...] | None = None, border_px: float = 1.0) -> np.ndarray:
+                  size: tuple[float, ...] | None = None, border_px: float = 1.0, cut=None) -> np.ndarray:
     """Estimated vehicle centre (x, y) on the ground from its box (see the module docstring).
 
     `size`: (length, width, height[, clearance]) in metres; default the class's typical size. `border_px`:
-    an edge this close to the image border is where the vehicle leaves the picture, not where it ends."""
+    an edge this close to the image border is where the vehicle leaves the picture, not where it ends.
+    `cut`: 4 flags (u0, v0, u1, v1), edges known to be where the vehicle leaves the picture although the
+    box stops short of the border (a detector's box of a vehicle mostly out of the picture often does:
+    a track's predicted `outline` reaching past the border says so); None: only `border_px` decides."""
     dims = size if size is not None else VEHICLE_SIZE.get(label, VEHICLE_SIZE["car"])
     start = rough_ground_point(box, camera, label, size)
     b = np.array([float(v) for v in box])
-    return _best_fit(b, camera, start, heading, dims, border_px)[0][0]
+    return _best_fit(b, camera, start, heading, dims, _clipped(b, camera, border_px, cut))[0][0]
 
 
 def _best_fit(box: np.ndarray, camera: CameraModel, start: np.ndarray, heading: float | None, dims,
-              border_px: float):
+              clipped: np.ndarray):
     """(the fit at `heading`, or the best over a set of headings when it is None or not finite; its heading)."""
     if heading is not None and math.isfinite(heading):
-        return _fit(box, camera, start, heading, dims, border_px), float(heading)
-    fits = [(_fit(box, camera, start, yaw, dims, border_px), float(yaw))
+        return _fit(box, camera, start, heading, dims, clipped), float(heading)
+    fits = [(_fit(box, camera, start, yaw, dims, clipped), float(yaw))
             for yaw in np.linspace(0, math.pi, 6, endpoint=False)]
     return min(fits, key=lambda f: f[0][1])
 
@@ -281,8 +308,8 @@ _PRIOR_STD_M = 50.0  # a direction the box does not constrain at all (every edge
 
 def ground_fix(box, camera: CameraModel, label: str = "car", heading: float | None = None,
                size: tuple[float, ...] | None = None, noise: BoxNoise = BoxNoise(),
-               border_px: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """`box_to_ground`'s centre (x, y) and its 2x2 covariance (m^2).
+               border_px: float = 1.0, cut=None) -> tuple[np.ndarray, np.ndarray]:
+    """`box_to_ground`'s centre (x, y) and its 2x2 covariance (m^2) (`cut` as there).
 
     Why a covariance per box rather than one figure for all: one pixel of a far vehicle's bottom edge is
     d^2 / (f h) metres along the viewing ray (about 0.9 m at 40 m for the 6 m pole) but only d / f across
@@ -295,10 +322,10 @@ def ground_fix(box, camera: CameraModel, label: str = "car", heading: float | No
     dims = tuple(size if size is not None else VEHICLE_SIZE.get(label, VEHICLE_SIZE["car"]))
     start = rough_ground_point(box, camera, label, size)
     b = np.array([float(v) for v in box])
-    (p, _, J), yaw = _best_fit(b, camera, start, heading, dims, border_px)
-    residual = _residual_fn(b, camera, yaw, dims, border_px)
+    clipped = _clipped(b, camera, border_px, cut)
+    (p, _, J), yaw = _best_fit(b, camera, start, heading, dims, clipped)
+    residual = _residual_fn(b, camera, yaw, dims, clipped)
     extent = np.array([b[2] - b[0], b[3] - b[1]] * 2)  # (w, h, w, h): width for u0, u1; height for v0, v1
-    clipped = _clipped(b, camera, border_px)
     rel = noise.cut_edge_rel if clipped.any() else noise.edge_rel
     sigma_px = np.maximum(np.hypot(noise.edge_px, rel * extent), 1e-3)
     w = np.where(clipped, 0.0, (residual.scale / sigma_px) ** 2)  # per edge, 1/sigma_r^2
@@ -315,12 +342,12 @@ def ground_fix(box, camera: CameraModel, label: str = "car", heading: float | No
     yaw_std = noise.heading_rad if heading is not None and math.isfinite(heading) else noise.search_heading_rad
     if yaw_std > 0:
         h = 1e-3
-        cov = cov + shift((_residual_fn(b, camera, yaw + h, dims, border_px)(p) - r0) / h, yaw_std)
+        cov = cov + shift((_residual_fn(b, camera, yaw + h, dims, clipped)(p) - r0) / h, yaw_std)
     if noise.size_rel > 0:
         for k in range(3):  # length, width, height
             d = list(dims)
             h = 1e-3 * d[k]
             d[k] += h
-            cov = cov + shift((_residual_fn(b, camera, yaw, d, border_px)(p) - r0) / h, noise.size_rel * dims[k])
+            cov = cov + shift((_residual_fn(b, camera, yaw, d, clipped)(p) - r0) / h, noise.size_rel * dims[k])
     cov = cov + np.eye(2) * noise.floor_m ** 2
     return p, (cov + cov.T) / 2
