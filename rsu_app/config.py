@@ -15,7 +15,7 @@ Config file (all keys optional; `scenarios/apps/rsu.toml` is the case study's)::
     [detector]
     backend = "onnx"
     [tracker]
-    confirm_hits = 2
+    confirm_hits = 3
     ...
 """
 from __future__ import annotations
@@ -94,9 +94,9 @@ class DetectorSettings:
     threads: int = field(default=1, metadata=_key(
         "CPU threads of the detector (torch, onnxruntime, OpenCV); 1 does not oversubscribe a 2-core machine "
         "shared with the master", "--threads", low=1, high=256))
-    score_threshold: float = field(default=0.5, metadata=_key(
+    score_threshold: float = field(default=0.4, metadata=_key(
         "detections below this score are ignored (the operating point: lower finds more and invents more; "
-        "0.5 chosen on tests/scenarios/rsu_tuning.toml, benchmarks/rsu_app.py --tune)",
+        "0.4 chosen on tests/scenarios/rsu_tuning*.toml, benchmarks/rsu_app.py --tune)",
         "--score-threshold", low=0.0, high=1.0))
     background: str | None = field(default=None, metadata=_key(
         "classical backend: empty-scene image (default: learn the background, MOG2)"))
@@ -107,9 +107,9 @@ class PerceptionSettings:
     max_range_m: float = field(default=60.0, metadata=_key(
         "tracks farther than this from the camera are not broadcast (box-based positions degrade with range)",
         positive=True))
-    track_range_m: float = field(default=70.0, metadata=_key(
+    track_range_m: float = field(default=80.0, metadata=_key(
         "ground points out to this range start and update tracks (>= max_range_m), so that a vehicle's track "
-        "is confirmed and settled when it enters max_range_m (70 chosen by benchmarks/rsu_app.py --tune)",
+        "is confirmed and settled when it enters max_range_m (80 chosen by benchmarks/rsu_app.py --tune)",
         positive=True))
     on_road_only: bool = field(default=True, metadata=_key(
         "ignore ground points off the roads of the intersection the master describes (the RSU's detection zone)"))
@@ -122,8 +122,8 @@ class PerceptionSettings:
         low=-1.0))
     ground_covariance: bool = field(default=False, metadata=_key(
         "each ground point carries the covariance of its box fit (the box noise below, propagated through "
-        "geo.ground_fix); false (the tuned default: no fewer false tracks on the tuning sequence): every point "
-        "counts as tracker.meas_std on each axis"))
+        "geo.ground_fix); false (the tuned default: the best point of the tuning sequences is without it, "
+        "though with it fewer points invent tracks): every point counts as tracker.meas_std on each axis"))
     box_edge_px: float = field(default=1.0, metadata=_key(
         "std of a box edge in pixels ... (chosen on the validation set: eval-detector --ground)", positive=True))
     box_edge_rel: float = field(default=0.06, metadata=_key(
@@ -137,7 +137,7 @@ class PerceptionSettings:
 @dataclass
 class TrackerSettings:
     motion: str = field(default="cv", metadata=_key("motion model", "--motion", choices=MOTIONS))
-    confirm_hits: int = field(default=2, metadata=_key(
+    confirm_hits: int = field(default=3, metadata=_key(
         "a track is confirmed (and broadcast) after this many detections ...", "--confirm-hits", low=1, high=100))
     confirm_window: int = field(default=5, metadata=_key("... within its first this many frames", low=1, high=100))
     max_missed: int = field(default=5, metadata=_key(
@@ -147,7 +147,8 @@ class TrackerSettings:
         "m: per-axis error of a ground position when perception.ground_covariance is off", positive=True))
     accel_std: float = field(default=3.0, metadata=_key("m/s^2: manoeuvring noise", positive=True))
     init_speed_std: float = field(default=10.0, metadata=_key(
-        "m/s: velocity std of a new track (its prior is standing still; 10 and 20 tie on the tuning sequence)",
+        "m/s: velocity std of a new track (its prior is standing still; 10 chosen by benchmarks/rsu_app.py "
+        "--tune)",
         positive=True))
     gate: float = field(default=13.82, metadata=_key("chi-square association gate (2 dof)", positive=True))
 

@@ -115,10 +115,10 @@ def test_bsms_for_both_vehicles_match_the_truth(case_run):
         hdg = float(np.median([h for _, _, h in rows if h is not None]))
         rate = (len(rows) - 1) / (times[-1] - times[0])
         report[vehicle] = (times[0], pos, hdg, rate, len(rows))
-        # measured: cav 0.195 m, ev 0.560 m (medians; margin about 0.1 m). The ev's figure is the cost of the
-        # operating point benchmarks/rsu_app.py --tune chose on the tuning sequence: eval-tracker puts its
-        # track 0.45 m off there against 0.32 m at the previous defaults (RECIPE.md)
-        assert pos <= {"cav": 0.3, "ev": 0.65}[vehicle], report
+        # measured: cav 0.170 m, ev 0.552 m (medians; margin about 0.1 m). The ev's figure is the cost of the
+        # operating points benchmarks/rsu_app.py --tune chose on the tuning sequences (its track is started
+        # out to 70-80 m, where a box's ground point is metres off along the ray; RECIPE.md)
+        assert pos <= {"cav": 0.27, "ev": 0.65}[vehicle], report
         assert hdg <= 5.0, report
         assert 9.0 <= rate <= 11.0, report  # J2945/1: 10 Hz (ANCHORS I1)
         assert {b.emergency for b, _, _ in rows} == {vehicle == "ev"}
