@@ -325,3 +325,49 @@ def test_class_weights_scale_each_class_s_terms_of_the_loss(data, tmp_path, caps
     assert main(["train-detector", "--data", str(data), "--out", str(tmp_path / "w.pt"), "--epochs", "1",
                  "--class-weight", "emergency"]) == 2
     assert "--class-weight emergency: expected CLASS=WEIGHT" in capsys.readouterr().err
+
+
+def test_painted_occluders_shrink_the_boxes_they_hide():
+    """`_occlude` paints a block from one side of a vehicle down to the image bottom; the truths are visible
+    boxes, so a box loses exactly the columns the block covers over its full height, and a box left with
+    less than MIN_VISIBLE_SHARE of itself is masked out of the loss. Painted pixels are found by painting
+    two images of different grounds with the same draws (the block is the same in both)."""
+    from rsu_app.perception.train import MIN_VISIBLE_SHARE, _occlude
+
+    # small: within the car's left strip, and under 4 px wide: it draws no occluder of its own
+    car, small = (80.0, 40.0, 120.0, 60.0), (84.0, 45.0, 87.0, 50.0)
+    shrunk = hidden = 0
+    for seed in range(60):
+        imgs, out = [], []
+        for ground in (0, 255):
+            img = np.full((100, 200, 3), ground, np.uint8)
+            boxes, ignore = [car, small], [False, False]
+            _occlude(np.random.default_rng(seed), img, boxes, ignore, 1.0)
+            imgs.append(img)
+            out.append((boxes, ignore))
+        assert out[0] == out[1]
+        (new_car, new_small), (car_ignored, _) = out[0]
+        painted = (imgs[0] == imgs[1]).all(axis=2)
+        assert painted.any()
+        full = painted[40:60, 80:120].all(axis=0)  # car columns the block covers over the car's height
+        kept = [80 + i for i in np.flatnonzero(~full)]
+        assert not car_ignored and (new_car[0], new_car[2] - 1) == (kept[0], kept[-1]), (seed, new_car, kept)
+        assert new_car[1:4:2] == car[1:4:2]
+        shrunk += new_car != car
+        if painted[45:50, 84:87].all():  # the small vehicle is entirely behind the block
+            hidden += 1
+            assert out[0][1][1] and (new_small[2] - new_small[0]) * (new_small[3] - new_small[1]) < \
+                MIN_VISIBLE_SHARE * 15
+        else:
+            assert not out[0][1][1] or new_small != small
+    assert shrunk > 20 and hidden > 5, (shrunk, hidden)
+
+
+def test_occluders_are_recorded_and_checked(data, tmp_path):
+    with pytest.raises(ValueError, match="occluders must be within 0..1, got 1.5"):
+        train(data, None, epochs=1, occluders=1.5, **TINY)
+    ckpt = train(data, None, epochs=1, seed=0, occluders=0.5, **TINY)
+    assert ckpt["training"]["occluders"] == 0.5
+    plain = train(data, None, epochs=1, seed=0, **TINY)
+    assert plain["training"]["occluders"] == 0.0
+    assert any(not torch.equal(ckpt["state_dict"][k], plain["state_dict"][k]) for k in plain["state_dict"])

@@ -37,6 +37,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--max-occlusion", type=float,
                    help="mask vehicles more hidden than this (0..1, from the dataset's occlusion labels) out "
                         "of the loss")
+    t.add_argument("--occluders", type=float, default=0.0, metavar="P",
+                   help="paint an occluder over each vehicle with probability P (0..1; default 0) and shrink its "
+                        "box to what is left: half-hidden vehicles are the detector's weak spot")
     t.add_argument("--class-weight", action="append", default=[], metavar="CLASS=W",
                    help="weigh this class's objects W times in the loss (repeatable), e.g. emergency=2")
     t.set_defaults(func=_cmd_train)
@@ -86,7 +89,7 @@ def _cmd_train(args) -> int:
         ckpt = train(args.data, args.out, epochs=args.epochs, seed=args.seed, threads=args.threads,
                      batch_size=args.batch_size, lr=args.lr, width=args.width, crop=crop,
                      input_size=input_size, heads=args.heads, init=args.init, max_occlusion=args.max_occlusion,
-                     class_weights=class_weights,
+                     class_weights=class_weights, occluders=args.occluders,
                      command=command or f"v2i train-detector --data {args.data} --out {args.out} "
                                         f"--epochs {args.epochs} --seed {args.seed} --threads {args.threads}")
     except (DatasetError, ValueError) as exc:

@@ -4,7 +4,9 @@ Deterministic for a given (dataset, seed, epochs, threads, torch build): a
 seeded numpy generator drives sampling and augmentation, torch runs with
 deterministic algorithms, batches are built in this process.
 Augmentation: scale jitter with random placement (one affine warp),
-horizontal flip, brightness/contrast/per-channel gain jitter. Annotations
+horizontal flip, brightness/contrast/per-channel gain jitter and, with
+`occluders`, painted occluders: half-hidden vehicles are where the detector
+misses most, and the renders hold few of them. Annotations
 flagged "ignore", and with `max_occlusion` those more hidden than that, are
 masked out of the heatmap loss: the network is neither rewarded nor punished
 for firing on them (a vehicle 80 % behind a building is neither a clear
@@ -62,6 +64,58 @@ def _colour(rng: np.random.Generator, img: np.ndarray) -> np.ndarray:
     x = (x - mean) * rng.uniform(0.8, 1.2) + mean
     x = x * gain + rng.normal(0, 2.0, x.shape).astype(np.float32)
     return np.clip(x, 0, 255)
+
+
+# an occluder hides this share of a vehicle's width from one side; a vehicle it leaves less than
+# MIN_VISIBLE_SHARE of (of what was visible) is masked out of the loss, like a heavily occluded one
+OCCLUDER_SHARE = (0.2, 0.6)
+MIN_VISIBLE_SHARE = 0.3
+
+
+def _occlude(rng: np.random.Generator, img: np.ndarray, boxes: list, ignore: list, p: float) -> None:
+    """Paint occluders into `img` (network input, in place) and shrink the visible boxes they hide.
+
+    Each vehicle (not ignored, under 40 % of the image wide) gets one with probability p: a block like the
+    corner of a building or a nearer vehicle, covering 20-60 % of the vehicle's width from its left or
+    right side, from somewhere above the vehicle down to the bottom of the image (what stands in front is
+    nearer, so it reaches lower in the picture), flat-coloured with a gradient and noise. Every box it
+    covers over its full height loses that side (the truths are visible boxes); one it hides the bottom of
+    across the whole width loses its bottom; a box left with less than `MIN_VISIBLE_SHARE` is ignored."""
+    H, W = img.shape[:2]
+    for i in range(len(boxes)):
+        c0, d0, c1, d1 = boxes[i]
+        w = c1 - c0
+        if ignore[i] or w < 4 or w > 0.4 * W or rng.random() >= p:
+            continue
+        share = rng.uniform(*OCCLUDER_SHARE)
+        if rng.random() < 0.5:
+            a, b = c0 - rng.uniform(0.0, 0.5) * w, c0 + share * w
+        else:
+            a, b = c1 - share * w, c1 + rng.uniform(0.0, 0.5) * w
+        a, b = int(max(0, math.floor(a))), int(min(W, math.ceil(b)))
+        top = int(max(0, math.floor(d0 - rng.uniform(0.0, 1.0) * (d1 - d0))))
+        if b <= a or top >= H:
+            continue
+        colour = rng.uniform(30, 225) * rng.uniform(0.85, 1.15, 3)
+        ramp = np.linspace(0, rng.uniform(-40, 40), H - top)[:, None, None]
+        block = colour[None, None, :] + ramp + rng.normal(0, 4.0, (H - top, b - a, 3))
+        img[top:, a:b] = np.clip(block, 0, 255).astype(img.dtype)
+        for j, (u0, v0, u1, v1) in enumerate(boxes):
+            if b <= u0 or a >= u1 or v1 <= top:
+                continue
+            before = (u1 - u0) * (v1 - v0)
+            if top <= v0:  # covers the box's full height
+                if a <= u0 and b >= u1:
+                    u1 = u0
+                elif a <= u0:
+                    u0 = b
+                elif b >= u1:
+                    u1 = a
+            elif a <= u0 and b >= u1:  # hides the box's lower part across its width
+                v1 = top
+            boxes[j] = (u0, v0, u1, v1)
+            if (u1 - u0) * (v1 - v0) < MIN_VISIBLE_SHARE * before or u1 - u0 < 1 or v1 - v0 < 1:
+                ignore[j] = True
 
 
 def _draw_gaussian(heat: np.ndarray, cx: float, cy: float, w: float, h: float) -> None:
@@ -127,17 +181,17 @@ def _crop(rng: np.random.Generator, img: np.ndarray, M: np.ndarray, crop: tuple[
 
 def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generator, augment: bool,
                 scale_jitter: float = 0.3, image: np.ndarray | None = None, crop: tuple[int, int] | None = None,
-                max_occlusion: float | None = None):
+                max_occlusion: float | None = None, occluders: float = 0.0):
     """One training pair: network input (3, H, W) float32 and its targets. `crop` (W, H): train on a
     random window of that size of the (augmented) network-input image instead of all of it.
-    `max_occlusion`: truths whose label says they are more hidden than this are ignored."""
+    `max_occlusion`: truths whose label says they are more hidden than this are ignored. `occluders`: the
+    probability that a vehicle gets a painted occluder (`_occlude`; with augmentation only)."""
     s = ds.samples[idx]
     img = s.load() if image is None else image
     out, M = _geometry(rng, img, cfg, scale_jitter, augment)
     if crop is not None:
         out, M = _crop(rng, out, M, crop)
     W, H = out.shape[1], out.shape[0]
-    x = (_colour(rng, out) if augment else out.astype(np.float32)) / 255.0
     cls = {c: i for i, c in enumerate(cfg.classes)}
     boxes, labels, ignore = [], [], []
     for t in s.truths:
@@ -154,6 +208,10 @@ def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generato
         labels.append(cls[t.label])
         hidden = max_occlusion is not None and t.occlusion is not None and t.occlusion > max_occlusion
         ignore.append(t.ignore or cut or hidden)
+    if augment and occluders > 0:
+        out = out.copy()  # never paint into a cached image
+        _occlude(rng, out, boxes, ignore, occluders)
+    x = (_colour(rng, out) if augment else out.astype(np.float32)) / 255.0
     tg = make_targets(np.array(boxes, np.float64).reshape(-1, 4), np.array(labels, np.int64),
                       np.array(ignore, bool), cfg, size=(W, H))
     return (np.ascontiguousarray(x.transpose(2, 0, 1)), *tg)
@@ -214,17 +272,21 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
           batch_size: int = 8, lr: float = 2e-3, width: int = 16, input_size: tuple[int, int] = (320, 240),
           augment: bool = True, cache_images: bool = True, crop: tuple[int, int] | None = None,
           heads: str = "separable", command: str | None = None, log=None, init: str | Path | dict | None = None,
-          max_occlusion: float | None = None, class_weights: dict[str, float] | None = None) -> dict:
+          max_occlusion: float | None = None, class_weights: dict[str, float] | None = None,
+          occluders: float = 0.0) -> dict:
     """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict.
     `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size.
     `init`: a checkpoint to start from (its width, input size and heads are used; the arguments
     for them are then ignored). `max_occlusion` (0..1): mask truths more hidden than this. `class_weights`
     ({label: weight}, others 1): how much each class's objects count in the loss (the emergency vehicle
-    is the one the case study exists for)."""
+    is the one the case study exists for). `occluders` (0..1): the probability that a vehicle gets a painted
+    occluder in a training image (`_occlude`)."""
     if epochs < 1 or batch_size < 1 or threads < 1:
         raise ValueError(f"epochs, batch_size and threads must be >= 1, got {epochs}, {batch_size}, {threads}")
     if max_occlusion is not None and not 0.0 <= max_occlusion <= 1.0:
         raise ValueError(f"max_occlusion must be within 0..1, got {max_occlusion}")
+    if not (isinstance(occluders, (int, float)) and 0.0 <= occluders <= 1.0):
+        raise ValueError(f"occluders must be within 0..1, got {occluders!r}")
     class_weights = dict(class_weights or {})
     bad = [f"{k!r} (classes: {', '.join(ModelConfig().classes)})" for k in class_weights if k not in ModelConfig().classes]
     bad += [f"{k}={v!r} (must be a finite number > 0)" for k, v in class_weights.items()
@@ -273,7 +335,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
         sums: dict[str, float] = {}
         for b in range(steps_per_epoch):
             items = [sample_item(ds, int(i), cfg, rng, augment, image=None if images is None else images[int(i)],
-                                 crop=crop, max_occlusion=max_occlusion)
+                                 crop=crop, max_occlusion=max_occlusion, occluders=occluders)
                      for i in order[b * batch_size:(b + 1) * batch_size]]
             batch = [torch.from_numpy(np.stack(col)) for col in zip(*items)]
             loss, parts = loss_fn(net(batch[0]), batch[1:], cw)
@@ -295,7 +357,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
             "seed": seed, "epochs": epochs, "threads": threads, "batch_size": batch_size, "lr": lr,
             "augment": augment, "crop": list(crop) if crop else None, "width": width, "heads": heads,
             "input_size": list(input_size), "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
-            "max_occlusion": max_occlusion, "class_weights": class_weights or None,
+            "max_occlusion": max_occlusion, "class_weights": class_weights or None, "occluders": occluders,
             "init": None if base is None else {
                 "command": base.get("training", {}).get("command"),
                 "dataset_sha256": base.get("training", {}).get("dataset_sha256"),
