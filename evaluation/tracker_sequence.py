@@ -17,8 +17,8 @@ the frames into tracks:
 
 - `chain="app"` (default): what the RSU app runs, wired as rsu_app/app.py
   wires it. A `rsu_app.config.Settings` (default `Settings()`, the values of
-  scenarios/apps/rsu.toml, chosen on the validation sequence
-  tests/scenarios/rsu_tuning.toml) gives the tracker's configuration, the
+  scenarios/apps/rsu.toml, chosen on the validation sequences
+  tests/scenarios/rsu_tuning*.toml) gives the tracker's configuration, the
   detection zone (on the intersection the master describes to the app), the
   score threshold, the duplicate-merge radius and the border rule of
   `rsu_app.perception_stage.PerceptionStage`. Each frame goes through
