@@ -88,7 +88,8 @@ class FrameResult:
     rejected: dict[str, int] = field(default_factory=dict)
     objects: list[BoxOutcome] = field(default_factory=list)  # every box above the threshold
     tracks: list[int | None] = field(default_factory=list)   # per detection, once applied: its track's id
-    confirmed: frozenset[int] = frozenset()  # of those tracks, the ones confirmed once the tracker learned them
+    broadcast: frozenset[int] = frozenset()  # of those tracks, the ones worth a BSM (confirmed, in the zone and in
+                                             # view: `broadcastable`) once the tracker learned them
 
     def track_of(self, outcome: BoxOutcome) -> int | None:
         """The id of the track a box's detection updated or started; None when rejected or not yet applied."""
@@ -276,14 +277,18 @@ class PerceptionStage:
         last pixels go, long after its centre has left)."""
         out = []
         for s in states:
-            views_known = bool(self.views)
-            zone_ok = not views_known or any(
-                self.zone.reason_to_reject(s.x, s.y, cam.position[:2]) is None for cam, _, _ in self.views.values())
-            if views_known and not (zone_ok and (s.missed == 0 or self.in_view(s.x, s.y))):
+            if not self._worth_sending(s):
                 self.suppressed_out_of_view += 1
                 continue
             out.append(s)
         return out
+
+    def _worth_sending(self, s: TrackState) -> bool:
+        if not self.views:
+            return True
+        zone_ok = any(self.zone.reason_to_reject(s.x, s.y, cam.position[:2]) is None
+                      for cam, _, _ in self.views.values())
+        return zone_ok and (s.missed == 0 or self.in_view(s.x, s.y))
 
     def apply(self, results: list[FrameResult]) -> float:
         """Fold the detections of frames of one instant into the tracker; returns the wall seconds it took."""
@@ -299,7 +304,7 @@ class PerceptionStage:
             log.warning("tracker refused the detections of t = %.3f: %s", t, exc)
             return time.perf_counter() - c0
         self.detections += len(dets)
-        note_tracks(results, self.tracker.last_assignment, {s.id for s in states})
+        note_tracks(results, self.tracker.last_assignment, {s.id for s in states if self._worth_sending(s)})
         latest = max(results, key=lambda r: r.detect_end)
         for s in states:
             if s.missed == 0:
@@ -310,25 +315,26 @@ class PerceptionStage:
         return time.perf_counter() - c0
 
 
-def note_tracks(results: list[FrameResult], assignment: list[int], confirmed: set[int]) -> None:
+def note_tracks(results: list[FrameResult], assignment: list[int], broadcast: set[int]) -> None:
     """Hand each frame its share of the tracker's association (its detections came in `results` order), so
-    its trace record can say which box became which track, and whether that track is confirmed."""
+    its trace record can say which box became which track, and whether that track is broadcast (a confirmed
+    track beyond `max_range_m`, started there by `track_range_m`, is not: no BSM carries its id)."""
     start = 0
     for r in results:
         r.tracks = list(assignment[start:start + len(r.detections)])
-        r.confirmed = frozenset(tid for tid in r.tracks if tid in confirmed)
+        r.broadcast = frozenset(tid for tid in r.tracks if tid in broadcast)
         start += len(r.detections)
 
 
 def detection_record(result: FrameResult, bsm_id: Callable[[int], str] | None = None) -> dict:
     """The frame's "detections" trace record: every box above the threshold, in the frame's pixels, with its
     label, score, track and the temporary id the BSMs of that track carry (`bsm_id(track)`; None while the
-    track is not confirmed, so not broadcast). Times are plain float seconds, never under "stamps": the
+    track is not broadcast: not confirmed, beyond the broadcast range or out of view). Times are plain float seconds, never under "stamps": the
     master's latency metrics read the stamps of trace records, and a record of boxes is no message."""
     objects = []
     for o in result.objects:
         track = result.track_of(o)
-        broadcast = bsm_id is not None and track is not None and track in result.confirmed
+        broadcast = bsm_id is not None and track is not None and track in result.broadcast
         objects.append({"box": list(o.box), "label": o.label, "score": o.score, "track": track,
                         "bsm_id": bsm_id(track) if broadcast else None, "rejected": o.rejected})
     return {"kind": DETECTIONS, "camera": result.camera, "frame_id": int(result.frame_id), "t": float(result.t),

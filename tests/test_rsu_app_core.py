@@ -752,3 +752,30 @@ def test_a_vehicle_leaving_under_the_pole_is_placed_by_what_is_left_of_it(monkey
     monkeypatch.setattr(ps, "leaving_edges", lambda box, w, h: np.zeros(4, bool))  # the box alone decides
     errors, _ = _leaving_errors(PerceptionStage.from_settings(ShortOracle(), Settings(), INTERSECTION), car, 7.5)
     assert max(errors) > 2.0, max(errors)  # measured 4.7 m
+
+
+def test_a_record_names_a_bsm_only_for_a_track_that_is_broadcast():
+    """A track started and confirmed beyond the broadcast range (track_range_m 90 > max_range_m 60) carries no
+    BSM there, so the frames' detections records name no BSM id for its boxes until it is within range: a
+    record naming an id no BSM ever carried would send the report's clip looking for a message that never
+    was (the case study's far emergency vehicle did, at 1.6-1.8 s)."""
+    from rsu_app.config import Settings
+    from rsu_app.perception_stage import detection_record
+
+    s = Settings()
+    s.perception.track_range_m = 90.0
+    stage = PerceptionStage.from_settings(Oracle(), s, INTERSECTION)
+    ev = Vehicle(-80.0, -1.75, 0.0, 16.667, "emergency")
+    named = {}  # frame time -> (camera distance of the vehicle, named a BSM id)
+    for k in range(31):
+        t = k / 10
+        result = stage.process(FakeFrame("rsu_cam", k, t, Pixels(t, [ev])), t)
+        stage.apply([result])
+        objects = detection_record(result, lambda tid: f"id{tid}")["objects"]
+        tracked = [o for o in objects if o["track"] is not None]
+        x, y = ev.at(t)
+        if tracked:
+            named[t] = (math.hypot(x - CAM.position[0], y - CAM.position[1]), tracked[0]["bsm_id"] is not None)
+    confirmed_far = [t for t, (d, _) in named.items() if d > 61.0 and stage.tracker.cfg.confirm_hits <= 10 * t + 1]
+    assert confirmed_far and not any(named[t][1] for t in confirmed_far), named
+    assert all(is_named for d, is_named in named.values() if d < 59.0), named
