@@ -228,7 +228,8 @@ def _score(seqs: list, detectors: list, point: dict) -> dict:
         setattr(getattr(s, section), key, value)
     reps = [score_sequence(seq, det, settings=s, near_m=NEAR_M, match_radius=MATCH_M)
             for seq, det in zip(seqs, detectors)]
-    coverage = {(f"{Path(r.scenario).stem}:{n}" if len(reps) > 1 else n): c for r in reps for n, c in r.coverage.items()}
+    coverage = {(f"{Path(r.scenario).stem}:{n}" if len(reps) > 1 else n): c
+                for r in reps for n, c in r.coverage.items()}
     pos = [row["position_error"] for r in reps for row in r.rows]
     hdg = [row["heading_error_deg"] for r in reps for row in r.rows if math.isfinite(row["heading_error_deg"])]
     duration = sum(r.duration_s for r in reps)

@@ -194,8 +194,8 @@ class PerceptionStage:
         heading, cut = None, None
         if track is not None:
             heading = track.heading
-            box = outline(track.x, track.y, track.heading, camera, det.label)
-            cut = leaving_edges(box, *size) if box is not None else None
+            predicted = outline(track.x, track.y, track.heading, camera, det.label)
+            cut = leaving_edges(predicted, *size) if predicted is not None else None
         border = max(self.border_px, 1.0)
         if self.noise is None:
             gx, gy = box_to_ground(det.box, camera, det.label, heading=heading, border_px=border, cut=cut)
@@ -284,6 +284,8 @@ class PerceptionStage:
         return out
 
     def _worth_sending(self, s: TrackState) -> bool:
+        """`broadcastable`'s test for one confirmed track (without its count); True before any frame told
+        the stage its cameras."""
         if not self.views:
             return True
         zone_ok = any(self.zone.reason_to_reject(s.x, s.y, cam.position[:2]) is None
@@ -329,8 +331,9 @@ def note_tracks(results: list[FrameResult], assignment: list[int], broadcast: se
 def detection_record(result: FrameResult, bsm_id: Callable[[int], str] | None = None) -> dict:
     """The frame's "detections" trace record: every box above the threshold, in the frame's pixels, with its
     label, score, track and the temporary id the BSMs of that track carry (`bsm_id(track)`; None while the
-    track is not broadcast: not confirmed, beyond the broadcast range or out of view). Times are plain float seconds, never under "stamps": the
-    master's latency metrics read the stamps of trace records, and a record of boxes is no message."""
+    track is not broadcast: not confirmed, beyond the broadcast range or out of view). Times are plain float
+    seconds, never under "stamps": the master's latency metrics read the stamps of trace records, and a
+    record of boxes is no message."""
     objects = []
     for o in result.objects:
         track = result.track_of(o)

@@ -257,8 +257,9 @@ def test_edges_a_predicted_outline_says_are_cut_decide_the_fit_where_the_box_sto
     assert leaving.tolist() == [False, False, True, True], whole
     clipped = np.minimum(whole, [640, 480, 640, 480])
     short = clipped - np.array([0, 0, 0.3 * (clipped[2] - clipped[0]), 0.3 * (clipped[3] - clipped[1])])
-    err = lambda box, cut: float(np.hypot(*(box_to_ground(box, cam, "car", heading=yaw, border_px=2.0, cut=cut)  # noqa: E731
-                                           - [x, y])))
+    def err(box, cut):
+        return float(np.hypot(*(box_to_ground(box, cam, "car", heading=yaw, border_px=2.0, cut=cut) - [x, y])))
+
     assert err(clipped, None) < 0.5 and err(short, leaving) < 0.5, (err(clipped, None), err(short, leaving))
     assert err(short, None) > 2.0, err(short, None)
     p, C = ground_fix(short, cam, "car", heading=yaw, border_px=2.0, cut=leaving)
