@@ -214,6 +214,7 @@ def test_checkpoint_without_head_kind_loads_as_full_convolutions(tmp_path):
     """Checkpoints written before ModelConfig.heads existed (full 3x3 head convolutions) still load and
     give the same outputs as the network that wrote them."""
     from rsu_app.perception.model import FORMAT, CenterNet
+    from rsu_app.perception.torch_backend import load_weights
 
     torch.manual_seed(0)
     net = CenterNet(ModelConfig(width=8, input_size=(192, 144), heads="conv")).eval()
@@ -221,11 +222,11 @@ def test_checkpoint_without_head_kind_loads_as_full_convolutions(tmp_path):
     del config["heads"]
     path = tmp_path / "old.pt"
     torch.save({"format": FORMAT, "config": config, "state_dict": net.state_dict()}, path)
-    det = make_detector("torch", weights=path, threads=1, score_threshold=0.0)
-    assert det.cfg.heads == "conv"
+    loaded, _ = load_weights(path)
+    assert make_detector("torch", weights=path, threads=1).cfg.heads == "conv"
     x = torch.rand(1, 3, 144, 192)
     with torch.inference_mode():
-        for a, b in zip(net(x), det.net(x)):
+        for a, b in zip(net(x), loaded(x)):
             assert torch.equal(a, b)
 
 
@@ -371,3 +372,37 @@ def test_occluders_are_recorded_and_checked(data, tmp_path):
     plain = train(data, None, epochs=1, seed=0, **TINY)
     assert plain["training"]["occluders"] == 0.0
     assert any(not torch.equal(ckpt["state_dict"][k], plain["state_dict"][k]) for k in plain["state_dict"])
+
+
+def test_torch_detector_runs_the_network_with_batchnorm_folded_in(data, learnt):
+    """The detector runs a copy of the network with every BatchNorm folded into its convolution (the
+    speed-up is measured in benchmarks/perception.py): its outputs are the trained network's to float
+    rounding, and its boxes on every toy image are the same. A network still in training mode is refused:
+    fusing would bake in statistics that training goes on changing."""
+    from rsu_app.perception.model import decode, fuse_for_inference, preprocess
+    from rsu_app.perception.torch_backend import load_weights
+
+    out, _ = learnt
+    plain, _ = load_weights(out)
+    det = make_detector("torch", weights=out, threads=1, score_threshold=0.1)
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in det.net.modules())
+    assert sum(isinstance(m, torch.nn.BatchNorm2d) for m in plain.modules()) > 10
+    assert det.net.stem[0][0].weight.is_contiguous(memory_format=torch.channels_last)
+    assert any(float(m.running_var.sub(1).abs().max()) > 0.01 for m in plain.modules()
+               if isinstance(m, torch.nn.BatchNorm2d))  # trained statistics: the fold is not a no-op
+    compared = 0
+    for s in load_dataset(data).samples[:6]:
+        x, scale = preprocess(s.load(), plain.cfg)
+        with torch.inference_mode():
+            a = [o.numpy() for o in plain(torch.from_numpy(x))]
+            b = [o.numpy() for o in det.net(torch.from_numpy(x))]
+        for p, q in zip(a, b):
+            assert np.allclose(p, q, atol=1e-4), float(np.abs(p - q).max())  # a wrong fold: ~0.1
+        want = decode(*a, scale, 4, plain.cfg.classes, 0.1)
+        got = [(*d.box, d.label) for d in det.detect(s.load())]
+        assert [w[4] for w in want] == [g[4] for g in got]
+        assert np.allclose([w[:4] for w in want], [g[:4] for g in got], atol=0.01)  # pixels
+        compared += len(want)
+    assert compared >= 4
+    with pytest.raises(ValueError, match="training mode"):
+        fuse_for_inference(load_weights(out)[0].train())

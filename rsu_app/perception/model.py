@@ -106,6 +106,29 @@ class CenterNet(nn.Module):
         return torch.sigmoid(self.heat(f)), self.size(f), self.offset(f)
 
 
+def fuse_for_inference(net: CenterNet) -> CenterNet:
+    """Fold every BatchNorm into the convolution before it and keep the weights channels-last, in place.
+
+    Why: at batch 1 on a CPU core, most of this small network's time is memory traffic, not
+    arithmetic; a separate BatchNorm pass over every feature map doubles it, and PyTorch's
+    depthwise and pointwise convolutions run faster on channels-last tensors once no BatchNorm
+    (slow in that layout) sits between them. Measured on this project's 2-core machine: the
+    network alone 1.4-1.9x faster at 512x384. The outputs match the unfused network's to float
+    rounding (1e-6 to 1e-4: the fold reorders the arithmetic). Inference only: a fused network has no BatchNorm statistics left to train."""
+    if net.training:
+        raise ValueError("fuse_for_inference: the network is in training mode; call .eval() first "
+                         "(fusion bakes in the BatchNorm running statistics)")
+    from torch.nn.utils.fusion import fuse_conv_bn_eval
+
+    for block in net.modules():
+        if isinstance(block, nn.Sequential):
+            for i in range(len(block) - 1):
+                if isinstance(block[i], nn.Conv2d) and isinstance(block[i + 1], nn.BatchNorm2d):
+                    block[i] = fuse_conv_bn_eval(block[i], block[i + 1])
+                    block[i + 1] = nn.Identity()
+    return net.to(memory_format=torch.channels_last)
+
+
 def preprocess(rgb: np.ndarray, cfg: ModelConfig) -> tuple[np.ndarray, tuple[float, float]]:
     """uint8 HxWx3 frame -> float32 (1, 3, h, w) network input and the (sx, sy) scale back to the frame."""
     W, H = cfg.input_size

