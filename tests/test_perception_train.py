@@ -406,3 +406,26 @@ def test_torch_detector_runs_the_network_with_batchnorm_folded_in(data, learnt):
     assert compared >= 4
     with pytest.raises(ValueError, match="training mode"):
         fuse_for_inference(load_weights(out)[0].train())
+
+
+def test_heat_sigma_narrows_the_target_peak_and_is_checked(data, tmp_path, capsys):
+    """The heat target's spread is a share of the box's size on each axis: 0.2 box widths from the centre
+    the default (1/6) leaves exp(-0.72) of the peak, 0.1 leaves exp(-2) (where the focal loss then counts
+    a high score as a false peak). Bad values are refused by train and the CLI, naming the setting; the
+    value is recorded in the checkpoint."""
+    from master.cli import main
+    from rsu_app.perception.train import HEAT_SIGMA, make_targets
+
+    cfg = ModelConfig(width=8, input_size=(320, 240))
+    box = np.array([[40.0, 100.0, 240.0, 140.0]])  # 200 x 40 px: 50 x 10 output cells, centre (35, 30)
+    for sigma, want in ((HEAT_SIGMA, math.exp(-0.72)), (0.1, math.exp(-2.0))):
+        heat = make_targets(box, np.array([1]), np.array([False]), cfg, heat_sigma=sigma)[0]
+        assert heat[1, 30, 35] == 1.0 and heat[0].max() == 0.0
+        assert heat[1, 30, 45] == pytest.approx(want, rel=1e-5)  # 10 cells = 0.2 widths to the right
+        assert heat[1, 32, 35] == pytest.approx(math.exp(-0.5 * (2 / (10 * sigma)) ** 2), rel=1e-5)
+    for bad in (0.0, -0.1, 0.6):
+        with pytest.raises(ValueError, match=f"heat_sigma must be within 0 < s <= 0.5.*got {bad}"):
+            train(data, None, epochs=1, heat_sigma=bad, **TINY)
+    assert main(["train-detector", "--data", str(data), "--out", str(tmp_path / "x.pt"), "--heat-sigma", "0.7"]) == 2
+    assert "heat_sigma must be within" in capsys.readouterr().err
+    assert train(data, None, epochs=1, seed=0, heat_sigma=0.1, **TINY)["training"]["heat_sigma"] == 0.1

@@ -40,6 +40,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--occluders", type=float, default=0.0, metavar="P",
                    help="paint an occluder over each vehicle with probability P (0..1; default 0) and shrink its "
                         "box to what is left: half-hidden vehicles are the detector's weak spot")
+    t.add_argument("--heat-sigma", type=float, metavar="S",
+                   help="the heat target's standard deviation as a share of a box's width and height (0 < S <= "
+                        "0.5; default 1/6): narrower peaks leave fewer second peaks on long vehicles")
     t.add_argument("--class-weight", action="append", default=[], metavar="CLASS=W",
                    help="weigh this class's objects W times in the loss (repeatable), e.g. emergency=2")
     t.set_defaults(func=_cmd_train)
@@ -90,6 +93,7 @@ def _cmd_train(args) -> int:
                      batch_size=args.batch_size, lr=args.lr, width=args.width, crop=crop,
                      input_size=input_size, heads=args.heads, init=args.init, max_occlusion=args.max_occlusion,
                      class_weights=class_weights, occluders=args.occluders,
+                     **({} if args.heat_sigma is None else {"heat_sigma": args.heat_sigma}),
                      command=command or f"v2i train-detector --data {args.data} --out {args.out} "
                                         f"--epochs {args.epochs} --seed {args.seed} --threads {args.threads}")
     except (DatasetError, ValueError) as exc:

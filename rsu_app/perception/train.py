@@ -118,10 +118,14 @@ def _occlude(rng: np.random.Generator, img: np.ndarray, boxes: list, ignore: lis
                 ignore[j] = True
 
 
-def _draw_gaussian(heat: np.ndarray, cx: float, cy: float, w: float, h: float) -> None:
-    """Splat an elliptical gaussian (peak 1 at the centre cell) into heat, keeping the max."""
+HEAT_SIGMA = 1 / 6  # the heat target's standard deviation as a share of the box's width and height
+
+
+def _draw_gaussian(heat: np.ndarray, cx: float, cy: float, w: float, h: float, spread: float = HEAT_SIGMA) -> None:
+    """Splat an elliptical gaussian (peak 1 at the centre cell, standard deviations `spread` times the
+    box's width and height) into heat, keeping the max."""
     Hh, Wh = heat.shape
-    sx, sy = max(0.5, w / 6), max(0.5, h / 6)
+    sx, sy = max(0.5, w * spread), max(0.5, h * spread)
     ix, iy = int(cx), int(cy)
     rx, ry = int(3 * sx) + 1, int(3 * sy) + 1
     x0, x1, y0, y1 = max(0, ix - rx), min(Wh, ix + rx + 1), max(0, iy - ry), min(Hh, iy + ry + 1)
@@ -133,9 +137,10 @@ def _draw_gaussian(heat: np.ndarray, cx: float, cy: float, w: float, h: float) -
 
 
 def make_targets(boxes: np.ndarray, labels: np.ndarray, ignore: np.ndarray, cfg: ModelConfig, max_objs: int = 64,
-                 size: tuple[int, int] | None = None):
+                 size: tuple[int, int] | None = None, heat_sigma: float = HEAT_SIGMA):
     """Boxes (N, 4) in network-input pixels -> heat, heat weight, indices, size, offset, object mask.
-    `size` (W, H): the training image size when it is a crop smaller than cfg.input_size."""
+    `size` (W, H): the training image size when it is a crop smaller than cfg.input_size. `heat_sigma`:
+    the heat target's spread as a share of each box's size (`_draw_gaussian`)."""
     W, H = size or cfg.input_size
     s = cfg.stride
     Wh, Hh = W // s, H // s
@@ -156,7 +161,7 @@ def make_targets(boxes: np.ndarray, labels: np.ndarray, ignore: np.ndarray, cfg:
         cx, cy = (u0 + u1) / 2, (v0 + v1) / 2
         if not (0 <= cx < Wh and 0 <= cy < Hh) or k >= max_objs:
             continue
-        _draw_gaussian(heat[c], cx, cy, w, h)
+        _draw_gaussian(heat[c], cx, cy, w, h, heat_sigma)
         ind[k] = int(cy) * Wh + int(cx)
         wh[k] = np.log(max(w, 0.25)), np.log(max(h, 0.25))
         offset[k] = cx - int(cx), cy - int(cy)
@@ -181,7 +186,7 @@ def _crop(rng: np.random.Generator, img: np.ndarray, M: np.ndarray, crop: tuple[
 
 def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generator, augment: bool,
                 scale_jitter: float = 0.3, image: np.ndarray | None = None, crop: tuple[int, int] | None = None,
-                max_occlusion: float | None = None, occluders: float = 0.0):
+                max_occlusion: float | None = None, occluders: float = 0.0, heat_sigma: float = HEAT_SIGMA):
     """One training pair: network input (3, H, W) float32 and its targets. `crop` (W, H): train on a
     random window of that size of the (augmented) network-input image instead of all of it.
     `max_occlusion`: truths whose label says they are more hidden than this are ignored. `occluders`: the
@@ -213,7 +218,7 @@ def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generato
         _occlude(rng, out, boxes, ignore, occluders)
     x = (_colour(rng, out) if augment else out.astype(np.float32)) / 255.0
     tg = make_targets(np.array(boxes, np.float64).reshape(-1, 4), np.array(labels, np.int64),
-                      np.array(ignore, bool), cfg, size=(W, H))
+                      np.array(ignore, bool), cfg, size=(W, H), heat_sigma=heat_sigma)
     return (np.ascontiguousarray(x.transpose(2, 0, 1)), *tg)
 
 
@@ -273,20 +278,24 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
           augment: bool = True, cache_images: bool = True, crop: tuple[int, int] | None = None,
           heads: str = "separable", command: str | None = None, log=None, init: str | Path | dict | None = None,
           max_occlusion: float | None = None, class_weights: dict[str, float] | None = None,
-          occluders: float = 0.0) -> dict:
+          occluders: float = 0.0, heat_sigma: float = HEAT_SIGMA) -> dict:
     """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict.
     `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size.
     `init`: a checkpoint to start from (its width, input size and heads are used; the arguments
     for them are then ignored). `max_occlusion` (0..1): mask truths more hidden than this. `class_weights`
     ({label: weight}, others 1): how much each class's objects count in the loss (the emergency vehicle
     is the one the case study exists for). `occluders` (0..1): the probability that a vehicle gets a painted
-    occluder in a training image (`_occlude`)."""
+    occluder in a training image (`_occlude`). `heat_sigma` (0 < s <= 0.5): the heat target's spread as a
+    share of a box's size; a narrower peak costs the network more for scoring cells off a long vehicle's
+    centre, where a second peak becomes a second box."""
     if epochs < 1 or batch_size < 1 or threads < 1:
         raise ValueError(f"epochs, batch_size and threads must be >= 1, got {epochs}, {batch_size}, {threads}")
     if max_occlusion is not None and not 0.0 <= max_occlusion <= 1.0:
         raise ValueError(f"max_occlusion must be within 0..1, got {max_occlusion}")
     if not (isinstance(occluders, (int, float)) and 0.0 <= occluders <= 1.0):
         raise ValueError(f"occluders must be within 0..1, got {occluders!r}")
+    if not (isinstance(heat_sigma, (int, float)) and 0.0 < heat_sigma <= 0.5):
+        raise ValueError(f"heat_sigma must be within 0 < s <= 0.5 (a share of the box's size), got {heat_sigma!r}")
     class_weights = dict(class_weights or {})
     bad = [f"{k!r} (classes: {', '.join(ModelConfig().classes)})" for k in class_weights if k not in ModelConfig().classes]
     bad += [f"{k}={v!r} (must be a finite number > 0)" for k, v in class_weights.items()
@@ -335,7 +344,8 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
         sums: dict[str, float] = {}
         for b in range(steps_per_epoch):
             items = [sample_item(ds, int(i), cfg, rng, augment, image=None if images is None else images[int(i)],
-                                 crop=crop, max_occlusion=max_occlusion, occluders=occluders)
+                                 crop=crop, max_occlusion=max_occlusion, occluders=occluders,
+                                 heat_sigma=heat_sigma)
                      for i in order[b * batch_size:(b + 1) * batch_size]]
             batch = [torch.from_numpy(np.stack(col)) for col in zip(*items)]
             loss, parts = loss_fn(net(batch[0]), batch[1:], cw)
@@ -358,6 +368,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
             "augment": augment, "crop": list(crop) if crop else None, "width": width, "heads": heads,
             "input_size": list(input_size), "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
             "max_occlusion": max_occlusion, "class_weights": class_weights or None, "occluders": occluders,
+            "heat_sigma": heat_sigma,
             "init": None if base is None else {
                 "command": base.get("training", {}).get("command"),
                 "dataset_sha256": base.get("training", {}).get("dataset_sha256"),
