@@ -154,7 +154,7 @@ class _CvFilter:
         kf.P = np.diag([0.0] * 2 + [cfg.init_speed_std ** 2] * 2)
         kf.P[:2, :2] = det.R(cfg.meas_std)
         kf.H = H.copy()
-        kf.R = np.eye(2) * cfg.meas_std ** 2
+        kf.R = np.full((2, 2), np.nan)  # no default noise: every update passes its detection's own R
         self.kf, self.accel_std = kf, cfg.accel_std
 
     def predict(self, dt: float) -> None:
@@ -241,7 +241,7 @@ class _CtrvFilter:
         ukf = UnscentedKalmanFilter(5, 2, 0.1, _hx, _fx_ctrv, self.points, sqrt_fn=_sqrt_psd, x_mean_fn=_mean_x,
                                     residual_x=_residual_x, state_add=_add_x)
         ukf.x, ukf.P = np.asarray(x, float), np.asarray(P, float)
-        ukf.R = np.eye(2) * cfg.meas_std ** 2
+        ukf.R = np.full((2, 2), np.nan)  # as _CvFilter: every update passes its detection's own R
         self.ukf, self.accel_std, self.turn_accel_std = ukf, cfg.accel_std, cfg.turn_accel_std
 
     @classmethod
