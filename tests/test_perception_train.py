@@ -429,3 +429,43 @@ def test_heat_sigma_narrows_the_target_peak_and_is_checked(data, tmp_path, capsy
     assert main(["train-detector", "--data", str(data), "--out", str(tmp_path / "x.pt"), "--heat-sigma", "0.7"]) == 2
     assert "heat_sigma must be within" in capsys.readouterr().err
     assert train(data, None, epochs=1, seed=0, heat_sigma=0.1, **TINY)["training"]["heat_sigma"] == 0.1
+
+
+def test_context_branch_starts_as_a_no_op_on_a_trained_network_and_then_learns(data, learnt, tmp_path, capsys):
+    """`--context` with `--init`: the stride-32 branch is added to a checkpoint without one and gives the
+    same outputs until trained (its last convolution starts at zero); one epoch of fine-tuning moves it
+    off zero; the config records it and loads back; a checkpoint of another shape is
+    refused naming what does not fit."""
+    from master.cli import main
+    from rsu_app.perception.model import CenterNet
+    from rsu_app.perception.torch_backend import load_weights
+
+    out, _ = learnt
+    plain, ckpt = load_weights(out)
+    grown = CenterNet(ModelConfig.from_dict({**ckpt["config"], "context": True}))
+    missing, unexpected = grown.load_state_dict(ckpt["state_dict"], strict=False)
+    assert not unexpected and missing and all(k.startswith("ctx.") for k in missing)
+    grown.eval()
+    x = torch.rand(1, 3, 144, 192)
+    with torch.inference_mode():
+        for a, b in zip(plain(x), grown(x)):
+            assert torch.equal(a, b)
+    tuned = train(data, None, epochs=1, seed=0, lr=1e-3, init=out, context=True,
+                  **{k: v for k, v in TINY.items() if k not in ("width", "input_size")})
+    assert tuned["config"]["context"] is True and tuned["training"]["context"] is True
+    assert float(tuned["state_dict"]["ctx.2.weight"].abs().max()) > 0
+    net, _ = load_weights(tuned)
+    assert net.cfg.context and isinstance(net.ctx[-1], torch.nn.Conv2d)
+    # a checkpoint of another shape is refused naming what does not fit, not half-loaded
+    other = {**ckpt, "state_dict": {k: v for k, v in ckpt["state_dict"].items() if not k.startswith("heat.")}}
+    with pytest.raises(DetectorError, match="do not fit the network their config describes: [0-9]+ missing \\(heat"):
+        train(data, None, epochs=1, init=other, **{k: v for k, v in TINY.items() if k not in ("width", "input_size")})
+    resized = {**ckpt, "config": {**ckpt["config"], "width": 16}}
+    with pytest.raises(DetectorError, match="describes: [0-9]+ of another shape \\(stem.0.0.weight \\(8, 3, 3, 3\\) \\(the network's: \\(16, 3, 3, 3\\)\\)"):
+        load_weights(resized)
+    w = tmp_path / "ctx.pt"
+    assert main(["train-detector", "--data", str(data), "--out", str(w), "--epochs", "1", "--threads", "1",
+                 "--width", "8", "--input", "208x144", "--context", "--crop", "128x96"]) == 0
+    capsys.readouterr()
+    assert torch.load(w, weights_only=True)["config"]["context"] is True
+    assert make_detector("onnx", weights=w, threads=1).cfg.context  # exports and runs in onnxruntime

@@ -43,6 +43,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--heat-sigma", type=float, metavar="S",
                    help="the heat target's standard deviation as a share of a box's width and height (0 < S <= "
                         "0.5; default 1/6): narrower peaks leave fewer second peaks on long vehicles")
+    t.add_argument("--context", action="store_true",
+                   help="add a stride-32 context branch (wider view per output cell; input sizes multiples of "
+                        "32); with --init it is added to the checkpoint's network as a no-op, then trained")
     t.add_argument("--class-weight", action="append", default=[], metavar="CLASS=W",
                    help="weigh this class's objects W times in the loss (repeatable), e.g. emergency=2")
     t.set_defaults(func=_cmd_train)
@@ -93,7 +96,7 @@ def _cmd_train(args) -> int:
                      batch_size=args.batch_size, lr=args.lr, width=args.width, crop=crop,
                      input_size=input_size, heads=args.heads, init=args.init, max_occlusion=args.max_occlusion,
                      class_weights=class_weights, occluders=args.occluders,
-                     **({} if args.heat_sigma is None else {"heat_sigma": args.heat_sigma}),
+                     **({} if args.heat_sigma is None else {"heat_sigma": args.heat_sigma}), context=args.context,
                      command=command or f"v2i train-detector --data {args.data} --out {args.out} "
                                         f"--epochs {args.epochs} --seed {args.seed} --threads {args.threads}")
     except (DatasetError, ValueError) as exc:

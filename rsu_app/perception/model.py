@@ -29,6 +29,7 @@ class ModelConfig:
     input_size: tuple[int, int] = (320, 240)  # (W, H) the frame is resized to
     classes: tuple[str, ...] = CLASSES
     heads: str = "separable"             # head blocks: "separable" (depthwise 3x3 + 1x1) or "conv" (full 3x3)
+    context: bool = False                # a stride-32 context branch (CenterNet.ctx) widens what each cell sees
     stride: int = field(default=4, init=False)  # output stride (fixed by the architecture)
 
     def __post_init__(self):
@@ -49,8 +50,9 @@ class ModelConfig:
     @classmethod
     def from_dict(cls, d: dict) -> "ModelConfig":
         # checkpoints written before `heads` existed used full 3x3 convolutions
+        # and those written before `context` existed had no context branch
         return cls(width=int(d["width"]), input_size=tuple(int(x) for x in d["input_size"]),
-                   classes=tuple(d["classes"]), heads=str(d.get("heads", "conv")))
+                   classes=tuple(d["classes"]), heads=str(d.get("heads", "conv")), context=bool(d.get("context", False)))
 
 
 def _conv(cin: int, cout: int, k: int = 3, s: int = 1) -> nn.Sequential:
@@ -84,6 +86,14 @@ class CenterNet(nn.Module):
         self.s4 = nn.Sequential(_dw(c, 2 * c, 2), _dw(2 * c, 2 * c))            # /4
         self.s8 = nn.Sequential(_dw(2 * c, 4 * c, 2), _dw(4 * c, 4 * c))        # /8
         self.s16 = nn.Sequential(_dw(4 * c, 8 * c, 2), _dw(8 * c, 8 * c), _dw(8 * c, 8 * c))  # /16
+        if cfg.context:
+            # Why: without it a stride-4 cell sees about 140 input pixels, less than a near emergency
+            # vehicle's length (300-500 px in the frame), so each end of it can look like a centre. The
+            # branch ends in a zero-initialised 1x1 convolution: added to a trained network it changes
+            # nothing until fine-tuning teaches it something (`train --init ... --context`).
+            self.ctx = nn.Sequential(_dw(8 * c, 8 * c, 2), _dw(8 * c, 8 * c), nn.Conv2d(8 * c, 8 * c, 1))  # /32
+            nn.init.zeros_(self.ctx[-1].weight)
+            nn.init.zeros_(self.ctx[-1].bias)
         self.lat16 = _conv(8 * c, 2 * c, 1)
         self.lat8 = _conv(4 * c, 2 * c, 1)
         self.fuse = _dw(2 * c, 2 * c)
@@ -101,6 +111,8 @@ class CenterNet(nn.Module):
         f4 = self.s4(self.stem(x))
         f8 = self.s8(f4)
         f16 = self.s16(f8)
+        if self.cfg.context:
+            f16 = f16 + nn.functional.interpolate(self.ctx(f16), size=f16.shape[-2:], mode="nearest")
         up = nn.functional.interpolate(self.lat16(f16), scale_factor=2.0, mode="nearest") + self.lat8(f8)
         f = self.fuse(nn.functional.interpolate(up, scale_factor=2.0, mode="nearest") + f4)
         return torch.sigmoid(self.heat(f)), self.size(f), self.offset(f)

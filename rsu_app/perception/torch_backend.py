@@ -26,7 +26,16 @@ def load_weights(weights: str | Path | dict) -> tuple[CenterNet, dict]:
         raise DetectorError(f"weights: expected a {FORMAT!r} checkpoint, got format "
                             f"{ckpt.get('format') if isinstance(ckpt, dict) else type(ckpt).__name__!r}")
     net = CenterNet(ModelConfig.from_dict(ckpt["config"]))
-    net.load_state_dict(ckpt["state_dict"])
+    name = "weights" if isinstance(weights, dict) else str(weights)
+    state, own = ckpt["state_dict"], net.state_dict()
+    problems = {"missing": [k for k in own if k not in state],
+                "unexpected": [k for k in state if k not in own],
+                "of another shape": [f"{k} {tuple(v.shape)} (the network's: {tuple(own[k].shape)})"
+                                     for k, v in state.items() if k in own and tuple(v.shape) != tuple(own[k].shape)]}
+    if any(problems.values()):
+        raise DetectorError(f"{name}: the weights do not fit the network their config describes: " + "; ".join(
+            f"{len(v)} {what} ({', '.join(v[:3])}{', ...' if len(v) > 3 else ''})" for what, v in problems.items() if v))
+    net.load_state_dict(state)
     return net.eval(), ckpt
 
 

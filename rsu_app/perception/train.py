@@ -278,7 +278,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
           augment: bool = True, cache_images: bool = True, crop: tuple[int, int] | None = None,
           heads: str = "separable", command: str | None = None, log=None, init: str | Path | dict | None = None,
           max_occlusion: float | None = None, class_weights: dict[str, float] | None = None,
-          occluders: float = 0.0, heat_sigma: float = HEAT_SIGMA) -> dict:
+          occluders: float = 0.0, heat_sigma: float = HEAT_SIGMA, context: bool = False) -> dict:
     """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict.
     `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size.
     `init`: a checkpoint to start from (its width, input size and heads are used; the arguments
@@ -287,7 +287,8 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     is the one the case study exists for). `occluders` (0..1): the probability that a vehicle gets a painted
     occluder in a training image (`_occlude`). `heat_sigma` (0 < s <= 0.5): the heat target's spread as a
     share of a box's size; a narrower peak costs the network more for scoring cells off a long vehicle's
-    centre, where a second peak becomes a second box."""
+    centre, where a second peak becomes a second box. `context`: add the stride-32 context branch
+    (`CenterNet.ctx`); with `init`, to a checkpoint without one (it starts as a no-op, see the model)."""
     if epochs < 1 or batch_size < 1 or threads < 1:
         raise ValueError(f"epochs, batch_size and threads must be >= 1, got {epochs}, {batch_size}, {threads}")
     if max_occlusion is not None and not 0.0 <= max_occlusion <= 1.0:
@@ -308,6 +309,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
 
         base_net, base = load_weights(init)  # DetectorError (a ValueError) names a bad file
         width, input_size, heads = base_net.cfg.width, base_net.cfg.input_size, base_net.cfg.heads
+        context = context or base_net.cfg.context
     if crop is not None:
         crop = (int(crop[0]), int(crop[1]))
         if crop[0] % 16 or crop[1] % 16 or not (0 < crop[0] <= input_size[0] and 0 < crop[1] <= input_size[1]):
@@ -326,10 +328,13 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     torch.manual_seed(seed)
     torch.use_deterministic_algorithms(True)
     rng = np.random.default_rng(seed)
-    cfg = ModelConfig(width=width, input_size=tuple(input_size), heads=heads)
+    cfg = ModelConfig(width=width, input_size=tuple(input_size), heads=heads, context=context)
     net = CenterNet(cfg)
     if base is not None:
-        net.load_state_dict(base["state_dict"])
+        missing, unexpected = net.load_state_dict(base["state_dict"], strict=False)
+        new = [k for k in missing if not k.startswith("ctx.")]
+        if new or unexpected:  # only the context branch may be new; anything else is a foreign checkpoint
+            raise ValueError(f"init: the checkpoint does not fit this network: missing {new}, unexpected {unexpected}")
     cw = (torch.tensor([float(class_weights.get(c, 1.0)) for c in cfg.classes]) if class_weights else None)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     steps_per_epoch = math.ceil(len(ds) / batch_size)
@@ -368,7 +373,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
             "augment": augment, "crop": list(crop) if crop else None, "width": width, "heads": heads,
             "input_size": list(input_size), "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
             "max_occlusion": max_occlusion, "class_weights": class_weights or None, "occluders": occluders,
-            "heat_sigma": heat_sigma,
+            "heat_sigma": heat_sigma, "context": context,
             "init": None if base is None else {
                 "command": base.get("training", {}).get("command"),
                 "dataset_sha256": base.get("training", {}).get("dataset_sha256"),
