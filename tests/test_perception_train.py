@@ -469,3 +469,21 @@ def test_context_branch_starts_as_a_no_op_on_a_trained_network_and_then_learns(d
     capsys.readouterr()
     assert torch.load(w, weights_only=True)["config"]["context"] is True
     assert make_detector("onnx", weights=w, threads=1).cfg.context  # exports and runs in onnxruntime
+
+
+def test_fine_tuning_at_another_input_size_only_when_asked(data, learnt, tmp_path, capsys):
+    """With --init the checkpoint's input size is kept unless --input is given; then the same weights are
+    trained at the new size, and the checkpoint records it."""
+    from master.cli import main
+
+    out, _ = learnt  # trained at 192x144
+    kept, resized = tmp_path / "kept.pt", tmp_path / "resized.pt"
+    common = ["train-detector", "--data", str(data), "--init", str(out), "--epochs", "1", "--threads", "1",
+              "--lr", "1e-7"]
+    assert main(common + ["--out", str(kept)]) == 0
+    assert main(common + ["--out", str(resized), "--input", "256x192"]) == 0
+    capsys.readouterr()
+    assert torch.load(kept, weights_only=True)["config"]["input_size"] == [192, 144]
+    ckpt = torch.load(resized, weights_only=True)
+    assert ckpt["config"]["input_size"] == [256, 192] and ckpt["config"]["width"] == 8
+    assert make_detector("torch", weights=resized, threads=1).cfg.input_size == (256, 192)

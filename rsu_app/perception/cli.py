@@ -26,14 +26,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--batch-size", type=int, default=8)
     t.add_argument("--lr", type=float, default=2e-3)
     t.add_argument("--width", type=int, default=16, help="channels of the first stage (speed/accuracy)")
-    t.add_argument("--input", default="320x240",
-                   help="network input WxH (multiples of 16) frames are resized to (default 320x240)")
+    t.add_argument("--input",
+                   help="network input WxH (multiples of 16) frames are resized to (default 320x240; with --init "
+                        "the checkpoint's unless given)")
     t.add_argument("--heads", default="separable", choices=("separable", "conv"),
                    help="output-head blocks: depthwise-separable (default) or full 3x3 convolutions")
     t.add_argument("--crop", help="train on random WxH windows (multiples of 16) of the network input, e.g. 192x144")
     t.add_argument("--onnx", help="also export the trained network to this .onnx file")
-    t.add_argument("--init", help="start from this checkpoint's weights (fine-tune); its width, input size and "
-                                  "heads are kept")
+    t.add_argument("--init", help="start from this checkpoint's weights (fine-tune); its width and heads are kept, "
+                                  "and its input size unless --input is given")
     t.add_argument("--max-occlusion", type=float,
                    help="mask vehicles more hidden than this (0..1, from the dataset's occlusion labels) out "
                         "of the loss")
@@ -84,7 +85,7 @@ def _cmd_train(args) -> int:
         print(f"error: --data {args.data}: not a folder", file=sys.stderr)
         return 2
     try:
-        input_size = _size_arg("--input", args.input)
+        input_size = _size_arg("--input", args.input or "320x240")
         crop = _size_arg("--crop", args.crop) if args.crop else None
         class_weights = _class_weights(args.class_weight)
     except ValueError as exc:
@@ -97,6 +98,7 @@ def _cmd_train(args) -> int:
                      input_size=input_size, heads=args.heads, init=args.init, max_occlusion=args.max_occlusion,
                      class_weights=class_weights, occluders=args.occluders,
                      **({} if args.heat_sigma is None else {"heat_sigma": args.heat_sigma}), context=args.context,
+                     override_input=args.input is not None,
                      command=command or f"v2i train-detector --data {args.data} --out {args.out} "
                                         f"--epochs {args.epochs} --seed {args.seed} --threads {args.threads}")
     except (DatasetError, ValueError) as exc:

@@ -278,7 +278,8 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
           augment: bool = True, cache_images: bool = True, crop: tuple[int, int] | None = None,
           heads: str = "separable", command: str | None = None, log=None, init: str | Path | dict | None = None,
           max_occlusion: float | None = None, class_weights: dict[str, float] | None = None,
-          occluders: float = 0.0, heat_sigma: float = HEAT_SIGMA, context: bool = False) -> dict:
+          occluders: float = 0.0, heat_sigma: float = HEAT_SIGMA, context: bool = False,
+          override_input: bool = False) -> dict:
     """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict.
     `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size.
     `init`: a checkpoint to start from (its width, input size and heads are used; the arguments
@@ -288,7 +289,9 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     occluder in a training image (`_occlude`). `heat_sigma` (0 < s <= 0.5): the heat target's spread as a
     share of a box's size; a narrower peak costs the network more for scoring cells off a long vehicle's
     centre, where a second peak becomes a second box. `context`: add the stride-32 context branch
-    (`CenterNet.ctx`); with `init`, to a checkpoint without one (it starts as a no-op, see the model)."""
+    (`CenterNet.ctx`); with `init`, to a checkpoint without one (it starts as a no-op, see the model).
+    `override_input`: with `init`, train at `input_size` instead of the checkpoint's (the network is
+    fully convolutional: the same weights run at any input size, and fine-tuning adapts them to a new one)."""
     if epochs < 1 or batch_size < 1 or threads < 1:
         raise ValueError(f"epochs, batch_size and threads must be >= 1, got {epochs}, {batch_size}, {threads}")
     if max_occlusion is not None and not 0.0 <= max_occlusion <= 1.0:
@@ -308,7 +311,8 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
         from rsu_app.perception.torch_backend import load_weights
 
         base_net, base = load_weights(init)  # DetectorError (a ValueError) names a bad file
-        width, input_size, heads = base_net.cfg.width, base_net.cfg.input_size, base_net.cfg.heads
+        width, heads = base_net.cfg.width, base_net.cfg.heads
+        input_size = input_size if override_input else base_net.cfg.input_size
         context = context or base_net.cfg.context
     if crop is not None:
         crop = (int(crop[0]), int(crop[1]))
