@@ -45,8 +45,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="the heat target's standard deviation as a share of a box's width and height (0 < S <= "
                         "0.5; default 1/6): narrower peaks leave fewer second peaks on long vehicles")
     t.add_argument("--context", action="store_true",
-                   help="add a stride-32 context branch (wider view per output cell; input sizes multiples of "
-                        "32); with --init it is added to the checkpoint's network as a no-op, then trained")
+                   help="add a stride-32 context branch (a wider view for each output cell); with --init it is "
+                        "added to the checkpoint's network as a no-op, then trained")
     t.add_argument("--class-weight", action="append", default=[], metavar="CLASS=W",
                    help="weigh this class's objects W times in the loss (repeatable), e.g. emergency=2")
     t.set_defaults(func=_cmd_train)

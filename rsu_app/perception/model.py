@@ -52,7 +52,8 @@ class ModelConfig:
         # checkpoints written before `heads` existed used full 3x3 convolutions
         # and those written before `context` existed had no context branch
         return cls(width=int(d["width"]), input_size=tuple(int(x) for x in d["input_size"]),
-                   classes=tuple(d["classes"]), heads=str(d.get("heads", "conv")), context=bool(d.get("context", False)))
+                   classes=tuple(d["classes"]), heads=str(d.get("heads", "conv")),
+                   context=bool(d.get("context", False)))
 
 
 def _conv(cin: int, cout: int, k: int = 3, s: int = 1) -> nn.Sequential:
@@ -125,8 +126,9 @@ def fuse_for_inference(net: CenterNet) -> CenterNet:
     arithmetic; a separate BatchNorm pass over every feature map doubles it, and PyTorch's
     depthwise and pointwise convolutions run faster on channels-last tensors once no BatchNorm
     (slow in that layout) sits between them. Measured on this project's 2-core machine: the
-    network alone 1.4-1.9x faster at 512x384. The outputs match the unfused network's to float
-    rounding (1e-6 to 1e-4: the fold reorders the arithmetic). Inference only: a fused network has no BatchNorm statistics left to train."""
+    network alone 1.35-1.45x faster at 512x384 (benchmarks/perception.py, alternating runs).
+    The outputs match the unfused network's to float rounding (1e-6 to 1e-4: the fold reorders
+    the arithmetic). Inference only: a fused network has no BatchNorm statistics left to train."""
     if net.training:
         raise ValueError("fuse_for_inference: the network is in training mode; call .eval() first "
                          "(fusion bakes in the BatchNorm running statistics)")

@@ -33,8 +33,9 @@ def load_weights(weights: str | Path | dict) -> tuple[CenterNet, dict]:
                 "of another shape": [f"{k} {tuple(v.shape)} (the network's: {tuple(own[k].shape)})"
                                      for k, v in state.items() if k in own and tuple(v.shape) != tuple(own[k].shape)]}
     if any(problems.values()):
-        raise DetectorError(f"{name}: the weights do not fit the network their config describes: " + "; ".join(
-            f"{len(v)} {what} ({', '.join(v[:3])}{', ...' if len(v) > 3 else ''})" for what, v in problems.items() if v))
+        listed = [f"{len(v)} {what} ({', '.join(v[:3])}{', ...' if len(v) > 3 else ''})"
+                  for what, v in problems.items() if v]
+        raise DetectorError(f"{name}: the weights do not fit the network their config describes: " + "; ".join(listed))
     net.load_state_dict(state)
     return net.eval(), ckpt
 
