@@ -335,10 +335,9 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     cfg = ModelConfig(width=width, input_size=tuple(input_size), heads=heads, context=context)
     net = CenterNet(cfg)
     if base is not None:
-        missing, unexpected = net.load_state_dict(base["state_dict"], strict=False)
-        new = [k for k in missing if not k.startswith("ctx.")]
-        if new or unexpected:  # only the context branch may be new; anything else is a foreign checkpoint
-            raise ValueError(f"init: the checkpoint does not fit this network: missing {new}, unexpected {unexpected}")
+        # load_weights checked the checkpoint against its own config; the network differs from it at most by
+        # a context branch added here, which keeps its no-op initial weights
+        net.load_state_dict(base["state_dict"], strict=not (context and not base_net.cfg.context))
     cw = (torch.tensor([float(class_weights.get(c, 1.0)) for c in cfg.classes]) if class_weights else None)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     steps_per_epoch = math.ceil(len(ds) / batch_size)
