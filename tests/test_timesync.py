@@ -390,7 +390,8 @@ def test_fixed_latency_policy_is_exact(buses):
     p = Participant(buses("rsu"), "rsu", "rsu_app")
     p.join(5)
     assert p.welcome.latency_policy == "fixed"
-    threading.Thread(target=c.tick, args=(3, 0.3), daemon=True).start()
+    ticking = threading.Thread(target=c.tick, args=(3, 0.3), daemon=True)
+    ticking.start()
     tick = p.next_tick(5)
     assert p.output_time("detect", processing_s=9.9) == 0.3 + 0.05  # processing time ignored: reproducible
     assert p.output_time("encode", tick=tick) == 0.3 + 0.002
@@ -399,6 +400,8 @@ def test_fixed_latency_policy_is_exact(buses):
     p.ack(tick, 0.01)
     with pytest.raises(ValueError, match="ack of tick 2, but the current tick is 3"):
         p.ack(m.Tick(2, 0.2))
+    ticking.join(5)  # the ack ended the tick (closing before it arrived left the tick resending)
+    assert not ticking.is_alive() and c.report()["members"]["rsu"]["acks"] == 1
     assert c.report()["members"]["rsu"]["latencies_s"] == {"detect": 0.05, "encode": 0.002}
     c.close()
     p.close()
@@ -450,6 +453,32 @@ def test_offset_estimate_with_a_skewed_clock(buses):
     p.ack(p.next_tick(2))  # a no-op in realtime
     assert c.report()["members"]["box"]["acks"] == 0 and c.report()["latency_policy"] == "realtime (wall clock)"
     c.close()
+    p.close()
+
+
+def test_closing_the_coordinator_ends_a_tick_still_waiting(buses):
+    """A tick waiting for an ack that can no longer come returns when the coordinator closes, instead of
+    resending on a bus its owner closes next (an unhandled error in the ticking thread)."""
+    c = coordinator(buses("master"), Expected("mute", timeout_s=30), heartbeat_timeout_s=30)
+    p = Participant(buses("mute"), "mute", "x")
+    p.join(5)
+    errors = []
+
+    def tick():
+        try:
+            c.tick(0, 0.0)
+        except Exception as exc:  # noqa: BLE001 (the test asserts there is none)
+            errors.append(exc)
+
+    ticking = threading.Thread(target=tick, daemon=True)
+    ticking.start()
+    p.next_tick(5)  # never acked
+    time.sleep(0.2)
+    assert ticking.is_alive()
+    c.close()
+    ticking.join(2)
+    assert not ticking.is_alive() and errors == []
+    assert c.report()["members"]["mute"]["timeouts"] == 0
     p.close()
 
 

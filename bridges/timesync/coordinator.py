@@ -84,6 +84,7 @@ class Coordinator:
         self._waiting: set[str] = set()
         self._fatal: TimeSyncError | None = None
         self._stop = threading.Event()
+        self._closed = False  # close() ends a tick() still waiting: nobody is left to ack it
         self._opened = time.monotonic()
         self._subs: list = []
         self._beat: threading.Thread | None = None
@@ -141,7 +142,7 @@ class Coordinator:
         with self._cond:
             while True:
                 self._raise_fatal()  # before the exit test: a lost participant leaves the waiting set
-                if not self._waiting:
+                if not self._waiting or self._closed:
                     return
                 now = time.monotonic()
                 for name in sorted(self._waiting):
@@ -193,7 +194,12 @@ class Coordinator:
         self._stop.set()
 
     def close(self) -> None:
+        """Stop the heartbeat and the subscriptions. A tick() still waiting (in another thread) returns: its
+        acks can no longer arrive, and resending on a bus about to close would only raise there."""
         self._stop.set()
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
         if self._beat is not None:
             self._beat.join(timeout=2.0)
         for sub in self._subs:
