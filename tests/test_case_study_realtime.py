@@ -108,12 +108,32 @@ def test_with_the_rsu_on_a_box_the_vehicle_still_yields(realtime_run):
     assert "collision: false" in realtime_run["stdout"]
 
 
+# The app whose clock stamps one end of a stage while the master's stamps the other (bridges.v2x: the master
+# stamps FRAME, AIR_ARRIVAL and CAN_APPLIED; the RSU app its detector's and radio's stamps; the AV app the rest).
+ACROSS = {"stage1": "rsu", "air": "rsu", "stage3": "cav"}
+
+
+def clock_error_ms(meta: dict, app: str) -> float:
+    """How far (simulated ms) app's run clock may sit from the master's: its offset estimate is off by at most
+    half the round trip of the exchange it kept (bridges.timesync.clock). All processes here read one kernel
+    clock, so the true offset is 0 and the estimate itself must lie within that bound."""
+    offset = meta["participants"]["members"][app]["clock_offset"]
+    assert offset is not None, (app, meta["participants"])
+    half_rtt = offset["rtt_ns"] / 2
+    assert abs(offset["offset_ns"]) <= half_rtt + 1, (app, offset)
+    assert half_rtt <= 10e6, (app, offset)  # a bound this loose could no longer tell a mixed-up clock
+    return half_rtt * RTF / 1e6
+
+
 def test_every_stage_is_measured_on_one_clock(realtime_run):
-    """All stamps on the run clock: no stage is negative, and every camera-based record that became a command
-    was matched to the command's application (before, the master stamped its step time: 7 of 139 matched)."""
+    """All stamps on the run clock: no stage is negative beyond the apps' clock-sync bound, and every
+    camera-based record that became a command was matched to the command's application (before, the master
+    stamped its step time: 7 of 139 matched). A stage stamped by two processes is good only to the app's
+    offset estimate (CI once measured the air stage at -0.23 ms: the box's estimate was that far off)."""
     out = realtime_run["out"]
     records = [json.loads(line) for line in (out / "trace.jsonl").read_text().splitlines()]
     applied = applied_times(read_csv(out / "can-applied.csv"))
+    slack = {stage: clock_error_ms(realtime_run["meta"], app) for stage, app in ACROSS.items()}
     from_camera = [r for r in records if r.get("app") == "cav" and "frame" in r.get("stamps", {})]
     assert len(from_camera) > 20
     matched = 0
@@ -121,7 +141,7 @@ def test_every_stage_is_measured_on_one_clock(realtime_run):
         stamps = with_can_applied(record, applied)
         for stage in STAGES:
             value = stage_ms(stamps, stage)
-            assert value is None or value >= 0.0, (stage, value, record)
+            assert value is None or value >= -slack.get(stage, 0.0), (stage, value, slack, record)
         matched += stage_ms(stamps, "e2e") is not None
     assert matched >= 0.9 * len(from_camera)
     e2e = realtime_run["metrics"]["latency_ms"]["e2e"]
