@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import platform
 import shutil
-import signal
 import time
 from array import array
 from dataclasses import dataclass
@@ -34,6 +33,7 @@ from master.fmu_variables import element_names
 from master.hooks import Hook, Member, Outcome, RunContext, open_order, overrides
 from master.initialization import initialize
 from master.input_file import InputFiles
+from master.interrupts import Interrupted, SignalGuard
 from master.metrics import METRICS, run_metrics, write_metrics
 from master.pacing import Pacer
 from master.participants import ParticipantBridge, open_run_bus
@@ -44,10 +44,6 @@ from master.scenario import Scenario
 from master.serial_bridge import SerialBridges
 from master.stats import percentiles
 from master.streams import StreamsHook
-
-
-class Interrupted(Exception):
-    """SIGTERM/SIGINT during a run: stop, keep what was recorded."""
 
 
 @dataclass
@@ -288,7 +284,8 @@ class CoSimulation:
         pacer = Pacer(t.step / t.rtf, t.overrun) if t.mode == "realtime" else None
         steps_done, error, status = 0, None, "completed"
         wall0 = time.perf_counter()
-        previous_handler = self._install_sigterm()
+        guard = SignalGuard(lambda: [m.fmu.unzip_dir for m in members.values()])
+        guard.install()
         progress = None
         try:
             self._instantiate(members)
@@ -337,6 +334,8 @@ class CoSimulation:
                 for after in afters:
                     after(k, t_next)
                 steps_done = k + 1
+                if guard.pending is not None:  # a signal held while FMU code ran
+                    guard.check()
                 c1 = clock()
                 timed(c1 - c0)
                 if pacer:
@@ -382,7 +381,7 @@ class CoSimulation:
                 m.fmu.close()
             for d in self._tmp_dirs:
                 shutil.rmtree(d, ignore_errors=True)
-            self._restore_sigterm(previous_handler)
+            guard.restore()
             meta.update(status=status, error=error, steps_done=steps_done, sim_time_reached_s=t.start + sim_elapsed,
                         wall_time_s=wall, rtf=self._rtf_stats(sim_elapsed, wall, compute, t.step))
             if outcome.stop_reason is not None:
@@ -433,17 +432,3 @@ class CoSimulation:
         progress.n = round(sim_elapsed, 6)
         progress.set_postfix_str(f"RTF {sim_elapsed / wall:.1f}" if wall > 0 else "", refresh=False)
         progress.refresh()
-
-    @staticmethod
-    def _install_sigterm():
-        def handler(signum, frame):
-            raise Interrupted()
-        try:
-            return signal.signal(signal.SIGTERM, handler)
-        except ValueError:  # not the main thread
-            return None
-
-    @staticmethod
-    def _restore_sigterm(previous) -> None:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)

@@ -311,6 +311,36 @@ def test_a_signal_stops_cleanly_and_keeps_rows(write_scenario, tmp_path, sig):
     assert len(rows) == meta["steps_done"] + 1  # every completed step is on disk, none torn
 
 
+@pytest.fixture(scope="module")
+def slow_fmu(tmp_path_factory):
+    from pythonfmu.builder import FmuBuilder
+
+    return FmuBuilder.build_FMU(Path(__file__).parent / "fixtures" / "Slow.py", dest=tmp_path_factory.mktemp("slow"))
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "Ctrl-C"])
+def test_a_signal_inside_an_fmus_step_interrupts_the_run_not_the_fmu(write_scenario, slow_fmu, tmp_path, sig):
+    """pythonfmu runs the slave's Python in the master's interpreter: an exception raised by the signal
+    handler inside do_step became the FMU's fatal error ("failed in doStep ... Interrupted()", seen in CI).
+    Here nearly all the wall time is inside do_step (it sleeps 50 ms per step), so the signal lands there."""
+    path = write_scenario(f'[time]\nstop = 30.0\nstep = 0.01\n[fmus.slow]\nfmu = "{slow_fmu}"\n')
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "master.cli", "run", str(path), "--out", str(out), "--quiet"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 60
+    while not (out / "timeseries.csv").exists() or len((out / "timeseries.csv").read_text().splitlines()) < 4:
+        assert time.monotonic() < deadline and proc.poll() is None, proc.communicate()
+        time.sleep(0.02)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=30)
+    meta = json.loads((out / "metadata.json").read_text())
+    assert proc.returncode == 1 and meta["status"] == "interrupted", (err, meta.get("error"))
+    assert "doStep" not in err and meta["steps_done"] > 0
+    header, rows = read_csv(out)
+    assert len(rows) == meta["steps_done"] + 1
+
+
 def test_cli_run_prints_a_summary(capsys, tmp_path):
     assert main(["run", str(ROOT / "scenarios" / "two_vehicles.toml"), "--out", str(tmp_path / "r"), "--quiet"]) == 0
     out = capsys.readouterr().out
