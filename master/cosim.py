@@ -334,8 +334,6 @@ class CoSimulation:
                 for after in afters:
                     after(k, t_next)
                 steps_done = k + 1
-                if guard.pending is not None:  # a signal held while FMU code ran
-                    guard.check()
                 c1 = clock()
                 timed(c1 - c0)
                 if pacer:
@@ -343,6 +341,8 @@ class CoSimulation:
                     lags.append(lag)
                 if progress is not None and (k & 63) == 0:
                     self._tick(progress, t_next - start, c1 - wall0)
+                if guard.pending is not None:  # a signal held while FMU code ran: this step is kept and timed
+                    guard.check()
                 if ctx.stop_reason is not None:
                     status = "stopped"
                     break
