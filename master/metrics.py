@@ -233,7 +233,23 @@ def run_metrics(run_dir: Path, meta: dict[str, Any]) -> dict[str, Any] | None:
     out["time_mode"] = meta.get("mode")
     out["rtf"] = (meta.get("realtime") or {}).get("target_rtf") if meta.get("mode") == "realtime" else None
     out["latency_policy"] = _policy(run_dir)
+    out["clock_bound_ms"] = clock_bounds(meta)
     return out
+
+
+def clock_bounds(meta: dict[str, Any]) -> dict[str, float] | None:
+    """Realtime: {app: how far its run clock may sit from the master's, simulated ms}, None in lockstep.
+
+    An app stamps its work on the master's clock through an offset it estimated by ping/pong, which is off
+    by at most half the round trip of the exchange it kept (bridges.timesync.clock). So a latency stage
+    stamped by that app at one end and the master at the other (stage 1 and the air: the RSU app; stage 3:
+    the AV app) is good to that bound, and a short one can read that far below zero."""
+    if meta.get("mode") != "realtime":
+        return None
+    rtf = (meta.get("realtime") or {}).get("target_rtf") or 1.0
+    members = (meta.get("participants") or {}).get("members") or {}
+    return {name: m["clock_offset"]["rtt_ns"] / 2 / 1e6 * rtf for name, m in sorted(members.items())
+            if (m.get("clock_offset") or {}).get("rtt_ns") is not None}
 
 
 def rejected_by_receiver(run_dir: Path) -> dict[str, dict[str, int]]:

@@ -68,7 +68,7 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 # columns of the table that are not axes (master.sweep_table) and the top-level names of metrics.json
 RESERVED = ("point", "folder", "status", "error", "run_status", "wall_s", "host", "cpu", "collision",
             "first_collision_s", "min_gap_m", "min_ttc_s", "pet_s", "latency_ms", "pdr", "ipg_ms", "aoi_ms",
-            "time_mode", "latency_policy", "stop_reason", "rtf")
+            "time_mode", "latency_policy", "stop_reason", "rtf", "clock_bound_ms")
 
 
 class SweepError(ScenarioError):

@@ -33,6 +33,11 @@ def verdict_lines(metrics: dict[str, Any]) -> list[str]:
         rtf = metrics.get("rtf")
         if rtf and rtf != 1.0:  # realtime stamps are on the run clock: simulated ms = wall ms x rtf
             out.append(f"  wall clock at RTF {rtf:g}: p50 {e2e['p50'] / rtf:.1f} ms, p99 {e2e['p99'] / rtf:.1f} ms")
+        bounds = metrics.get("clock_bound_ms")
+        if bounds:  # realtime: a stage stamped by an app and by the master is good to the app's offset bound
+            out.append("  stages stamped by an app and the master are good to the app's clock-offset bound: "
+                       + ", ".join(f"{app} ±{ms:.2f} ms" for app, ms in bounds.items())
+                       + " (E2E is on the master's clock alone)")
     return out
 
 

@@ -134,6 +134,10 @@ def test_every_stage_is_measured_on_one_clock(realtime_run):
     records = [json.loads(line) for line in (out / "trace.jsonl").read_text().splitlines()]
     applied = applied_times(read_csv(out / "can-applied.csv"))
     slack = {stage: clock_error_ms(realtime_run["meta"], app) for stage, app in ACROSS.items()}
+    bounds = realtime_run["metrics"]["clock_bound_ms"]  # what the run reports of the same bounds
+    assert {app: bounds[app] for app in ACROSS.values()} == pytest.approx(
+        {app: slack[stage] for stage, app in ACROSS.items()})
+    assert f"rsu ±{bounds['rsu']:.2f} ms" in realtime_run["stdout"]
     from_camera = [r for r in records if r.get("app") == "cav" and "frame" in r.get("stamps", {})]
     assert len(from_camera) > 20
     matched = 0

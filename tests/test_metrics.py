@@ -6,7 +6,7 @@ import json
 import pytest
 
 from bridges import v2x
-from master.metrics import (Applications, aoi_metrics, applied_times, latency_metrics, link_metrics, read_jsonl,
+from master.metrics import (Applications, aoi_metrics, clock_bounds, applied_times, latency_metrics, link_metrics, read_jsonl,
                             subject_deliveries, with_can_applied)
 
 
@@ -87,3 +87,16 @@ def test_torn_jsonl_lines_are_skipped(tmp_path):
     path.write_text(json.dumps({"a": 1}) + "\n" + '{"b": ' + "\n")
     assert read_jsonl(path) == [{"a": 1}]
     assert read_jsonl(tmp_path / "missing.jsonl") == []
+
+
+def test_clock_bounds_are_half_each_apps_round_trip_in_simulated_ms():
+    """Realtime: an app's stamps are on the master's clock to within half the round trip of its offset
+    estimate; at RTF 0.3 one wall ms is 0.3 simulated ms. Lockstep stamps are simulated time: no bound."""
+    members = {"rsu": {"clock_offset": {"offset_ns": 39_067, "rtt_ns": 449_365, "samples": 8}},
+               "cav": {"clock_offset": {"offset_ns": 14_013, "rtt_ns": 352_346, "samples": 8}},
+               "late": {"clock_offset": None}}  # joined without an estimate: nothing to say
+    meta = {"mode": "realtime", "realtime": {"target_rtf": 0.3}, "participants": {"members": members}}
+    bounds = clock_bounds(meta)
+    assert list(bounds) == ["cav", "rsu"]
+    assert bounds["rsu"] == pytest.approx(0.449365 / 2 * 0.3) and bounds["cav"] == pytest.approx(0.352346 / 2 * 0.3)
+    assert clock_bounds({**meta, "mode": "lockstep"}) is None

@@ -98,6 +98,16 @@ def test_verdict_lines():
                      "E2E latency p50 120.0 ms, p99 180.0 ms (n = 40; lockstep, measured latency policy)"]
 
 
+def test_verdict_lines_of_a_realtime_run_give_the_apps_clock_bounds():
+    metrics = {"latency_ms": {"e2e": {"p50": 60.0, "p99": 90.0, "n": 12}}, "time_mode": "realtime", "rtf": 0.5,
+               "latency_policy": "measured", "clock_bound_ms": {"cav": 0.0881, "rsu": 0.1123}}
+    lines = verdict_lines(metrics)
+    assert lines[1] == "  wall clock at RTF 0.5: p50 120.0 ms, p99 180.0 ms"
+    assert lines[2] == ("  stages stamped by an app and the master are good to the app's clock-offset bound: "
+                        "cav ±0.09 ms, rsu ±0.11 ms (E2E is on the master's clock alone)")
+    assert len(verdict_lines({**metrics, "clock_bound_ms": None})) == 2
+
+
 def test_not_a_run_folder(tmp_path):
     with pytest.raises(ReportError, match="no timeseries.csv"):
         load_run(tmp_path)
