@@ -57,7 +57,8 @@ from bridges.geo import GeoError
 from rsu_app.perception.detector import Detection, DetectorError
 from rsu_app.perception.geo import (BoxNoise, CameraModel, box_to_ground, cut_edges, ground_fix, leaving_edges, outline,
                                     rough_ground_point)
-from rsu_app.perception.tracker import GroundDetection, Tracker, TrackerConfig, TrackerError, TrackState
+from rsu_app.perception.tracker import (GroundDetection, Tracker, TrackerConfig, TrackerError, TrackState,
+                                        positive_definite)
 
 log = logging.getLogger(__name__)
 HEADING_RADIUS = 3.0  # m: a track this close to a detection's rough ground point lends it its heading
@@ -202,7 +203,10 @@ class PerceptionStage:
             return float(gx), float(gy), None
         (gx, gy), C = ground_fix(det.box, camera, det.label, heading=heading, noise=self.noise, border_px=border,
                                  cut=cut)
-        return float(gx), float(gy), (float(C[0, 0]), float(C[0, 1]), float(C[1, 1]))
+        cov = (float(C[0, 0]), float(C[0, 1]), float(C[1, 1]))
+        if not positive_definite(cov):  # the tracker would refuse the frame's every box with it
+            raise ValueError(f"the ground fit's covariance is not finite and positive definite: {cov}")
+        return float(gx), float(gy), cov
 
     def process(self, frame, t_now: float) -> FrameResult | None:
         """Detect and project one frame (the tracker's prior is its state at `t_now`); None for a frame the

@@ -225,6 +225,23 @@ def test_ground_covariance_follows_the_viewing_ray_and_grows_with_range():
     assert 4.0 < a45 / a15 < 8.0 and 1.5 < c45 / c15 < 3.5 and a45 > 3 * c45, sig
 
 
+def test_a_fit_reaching_the_camera_keeps_a_positive_definite_covariance():
+    """A box at the picture's bottom-right corner, past its border, fitted as a long emergency vehicle heading
+    north (a nearby track's heading): the fitted outline reaches within centimetres of the camera's plane, so
+    the residual moves millions of pixels per metre one way and hardly at all the other. Inverting that
+    information matrix as it stood gave negative variances (found in the operating-point sweep, where the
+    tracker then refused every box of the frame); the covariance must stay positive definite, the direction
+    the box does not constrain keeping about the prior's spread."""
+    cam = _case_camera()
+    box = (403.5902019739151, 341.34539687633514, 671.7128216028214, 470.5259236097336)
+    p, C = ground_fix(box, cam, "emergency", heading=1.5710333141220378, border_px=2.0,
+                      cut=[False, False, True, True])
+    assert np.all(np.isfinite(p)) and np.all(np.isfinite(C))
+    eig = np.linalg.eigvalsh(C)
+    assert eig.min() > 0, C
+    assert 0.5 * 50.0 ** 2 < eig.max() < 2 * 50.0 ** 2, eig  # geo._PRIOR_STD_M: nothing learnt along it
+
+
 def test_an_edge_on_the_border_says_only_where_the_vehicle_leaves_the_picture():
     """A vehicle passing under the pole, its box cut by the bottom of the image: the cut edge carries no
     information and the others are less sure (`cut_edge_rel`), so its point is far less certain than the

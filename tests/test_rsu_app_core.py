@@ -779,3 +779,30 @@ def test_a_record_names_a_bsm_only_for_a_track_that_is_broadcast():
     confirmed_far = [t for t, (d, _) in named.items() if d > 61.0 and stage.tracker.cfg.confirm_hits <= 10 * t + 1]
     assert confirmed_far and not any(named[t][1] for t in confirmed_far), named
     assert all(is_named for d, is_named in named.values() if d < 59.0), named
+
+
+def test_a_box_whose_ground_fix_is_unusable_is_dropped_not_the_whole_frame(monkeypatch):
+    """With the box covariance on, a box whose fit yields a covariance the tracker must refuse (not finite,
+    or not positive definite: what `geo.ground_fix` once gave for a fit reaching the camera) is rejected as
+    having no ground point; before, it went to the tracker with the frame's other boxes, which then refused
+    them all (a frame lost, the vehicles in it unseen)."""
+    from rsu_app.config import Settings
+    import rsu_app.perception_stage as ps
+
+    settings = Settings()
+    settings.perception.ground_covariance = True
+    real = ps.ground_fix
+
+    def broken_for_the_ev(box, camera, label="car", **kw):
+        p, C = real(box, camera, label, **kw)
+        return (p, np.array([[-2.0, 11.8], [11.8, -64.0]])) if label == "emergency" else (p, C)
+
+    monkeypatch.setattr(ps, "ground_fix", broken_for_the_ev)
+    stage = PerceptionStage.from_settings(Oracle(), settings, INTERSECTION)
+    for k in range(4):
+        t = 2.0 + k / 10
+        result = stage.process(FakeFrame("rsu_cam", k, t, Pixels(t, [CAV, EV])), t)
+        assert {o.label: o.rejected for o in result.objects} == {"car": None, "emergency": "no ground point"}
+        stage.apply([result])
+    assert [tr.label() for tr in stage.tracker.tracks] == ["car"]
+    assert list(stage.tracker.tracks[0].hits) == [True] * 4, "every frame's car box reached the tracker"

@@ -329,8 +329,11 @@ def ground_fix(box, camera: CameraModel, label: str = "car", heading: float | No
     rel = noise.cut_edge_rel if clipped.any() else noise.edge_rel
     sigma_px = np.maximum(np.hypot(noise.edge_px, rel * extent), 1e-3)
     w = np.where(clipped, 0.0, (residual.scale / sigma_px) ** 2)  # per edge, 1/sigma_r^2
-    info = J.T @ (w[:, None] * J) + np.eye(2) / _PRIOR_STD_M ** 2
-    cov_p = np.linalg.inv(info)
+    # (J^T W J + I / prior^2)^-1 through the SVD of the whitened Jacobian, not by inverting the sum: when the
+    # fitted outline reaches close to the camera the residual moves millions of pixels per metre one way and
+    # hardly at all the other, and the direct inverse of so ill-conditioned a sum can have negative variances
+    _, s, vt = np.linalg.svd(np.sqrt(w)[:, None] * J, full_matrices=False)
+    cov_p = (vt.T / (s ** 2 + 1.0 / _PRIOR_STD_M ** 2)) @ vt
     gain = cov_p @ (J.T * w)  # d p / d r
     r0 = residual(p)
 

@@ -130,7 +130,8 @@ class _Estimate(NamedTuple):
     yaw_rate: float | None
 
 
-def _positive_definite(cov) -> bool:
+def positive_definite(cov) -> bool:
+    """Whether (var_x, cov_xy, var_y) is a covariance the filter can use: finite and positive definite."""
     try:
         a, b, c = (float(v) for v in cov)
     except (TypeError, ValueError):
@@ -349,7 +350,7 @@ class Tracker:
         for d in dets:
             if not (math.isfinite(d.x) and math.isfinite(d.y)):
                 raise TrackerError(f"detection position must be finite, got ({d.x}, {d.y})")
-            if d.cov is not None and not _positive_definite(d.cov):
+            if d.cov is not None and not positive_definite(d.cov):
                 raise TrackerError(f"detection covariance (var_x, cov_xy, var_y) must be finite and positive "
                                    f"definite, got {d.cov}")
         cfg = self.cfg
