@@ -14,18 +14,20 @@
    of the 10 Hz camera, frames it skipped, BSMs per second per track, its stage figures.
 4. With --tune: the operating-point sweep that chose the app's perception and tracker defaults, on
    the tuning sequences tests/scenarios/rsu_tuning.toml (four vehicles crossing and leaving the
-   junction) and tests/scenarios/rsu_tuning_border.toml (four more, entering and leaving the picture
-   close under the camera pole), never on the case study the tests score, each scored exactly as
+   junction), tests/scenarios/rsu_tuning_border.toml (four more, entering and leaving the picture
+   close under the camera pole) and tests/scenarios/rsu_tuning_pair.toml (an emergency vehicle with a car
+   close behind it, met by oncoming traffic), never on the case study the tests score, each scored exactly as
    `v2i eval-tracker` scores (evaluation.tracker_sequence.score_sequence: the tracks the app's
    PerceptionStage would broadcast, per frame): for each score threshold, track range, confirmation
    count, velocity prior of a new track and ground-point noise model (the box fit's covariance or one
    fixed figure), the false track-frames, the coverage of each vehicle visible within 60 m, id switches
    and the median position error, summed (false track-frames, id switches) or pooled (coverage of every
-   vehicle of both, position errors) over the sequences. The selected point has the fewest false
+   vehicle of all, position errors) over the sequences. The selected point has the fewest false
    track-frames and id switches, then the highest coverage of its worst-covered vehicle, then the highest
-   mean coverage, then the smallest median error; the case
-   study's figures at the selected point and at the app's defaults are printed beside it (measured
-   there, chosen nowhere near it).
+   mean coverage, then the smallest median error, except that the app's defaults stay selected when they
+   are equal to that point on every count and coverage and less than 1 cm behind it
+   (evaluation/operating_point.py); the case study's figures at the selected point and at the app's
+   defaults are printed beside it (measured there, chosen nowhere near it).
 
 Results go to JSON (default benchmarks/results/rsu_app.json). `--quick`: onnx only, 1 thread, 3 s realtime.
 """
@@ -52,11 +54,13 @@ sys.path[:] = [str(ROOT)] + [p for p in sys.path if Path(p or ".").resolve() != 
 import numpy as np  # noqa: E402
 
 from benchmarks.common import RESULTS, machine_info, write_report  # noqa: E402
+from evaluation import operating_point  # noqa: E402
 
 PAPER_STAGE1_MS = 3600.0  # ANCHORS I6: detection on an 8-core CPU
 PAPER_STAGE2_MS = 8.1     # ANCHORS I6: BSM encode + transfer
 CASE = ROOT / "scenarios" / "ima_world.toml"
-TUNING = [ROOT / "tests" / "scenarios" / "rsu_tuning.toml", ROOT / "tests" / "scenarios" / "rsu_tuning_border.toml"]
+TUNING = [ROOT / "tests" / "scenarios" / name
+          for name in ("rsu_tuning.toml", "rsu_tuning_border.toml", "rsu_tuning_pair.toml")]
 MATCH_M = 3.0
 NEAR_M = 60.0
 
@@ -257,12 +261,9 @@ def tune(seqs_tune: list, seq_case, quick: bool, weights: str | None = None) -> 
     for values in itertools.product(*grid.values()):
         point = dict(zip(grid, values))
         rows.append({"point": {f"{a}.{b}": v for (a, b), v in point.items()}, **_score(seqs_tune, tune_boxes, point)})
-    # a frame of coverage is a real difference, a centimetre of median error on ~200 samples is not: all
-    # coverage before the error
-    rows.sort(key=lambda r: (r["false_track_frames"] + r["id_switches"], -r["min_coverage"], -r["mean_coverage"],
-                             r["position_median_m"]))
-    selected = rows[0]["point"]
+    rows = operating_point.order(rows)
     defaults = {f"{a}.{b}": getattr(getattr(Settings(), a), b) for a, b in grid}
+    selected = operating_point.select(rows, defaults)
     at = lambda p: _score([seq_case], [case_boxes], {tuple(k.split(".")): v for k, v in p.items()})  # noqa: E731
     return {"sequences": [str(t.relative_to(ROOT)) for t in TUNING], "detector": detector.name, "rows": rows,
             "selected": selected, "defaults": defaults, "defaults_are_selected": selected == defaults,

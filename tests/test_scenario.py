@@ -131,6 +131,18 @@ def test_shipped_scenarios_validate():
         load_scenario(path)
 
 
+def test_tuning_scenarios_validate():
+    """The sequences benchmarks/rsu_app.py --tune chooses the RSU app's operating point on: each loads, and
+    every vehicle it drives is one the world renders (a vehicle without looks would score as never seen)."""
+    from pathlib import Path
+
+    tuning = sorted((Path(__file__).parent / "scenarios").glob("rsu_tuning*.toml"))
+    assert len(tuning) == 3
+    for path in tuning:
+        sc = load_scenario(path)
+        assert sc.world is not None and set(sc.instances) == set(sc.world.vehicles), path
+
+
 def test_fmu_without_a_binary_for_this_platform(write_scenario, vehicle_fmu, tmp_path):
     import zipfile
 
