@@ -3,8 +3,10 @@
     python benchmarks/perception.py [--data data/heldout] [--frames 200] [--threads 1 2]
                                     [--busy 0 1] [--json PATH] [--quick]
 
-For each backend (torch and onnx with the shipped weights, the classical
-background-subtraction baseline with each frame's empty-scene image) and
+For each backend (torch and onnx with the shipped weights, torch again with
+its network through torch.compile ("torch-compiled", the detector's
+`compile=True`), the classical background-subtraction baseline with each
+frame's empty-scene image) and
 each CPU thread count, over the first N frames of a `v2i dataset` folder
 (default the held-out set, 640x480), the median time per frame of each stage:
 
@@ -132,8 +134,10 @@ def run_backend(name: str, threads: int, ds: Dataset, frames: list, operating: f
     cv2.setNumThreads(threads)
     if name == "classical":
         det, stages = make_detector("classical"), _classical_stages
-    elif name == "torch":
-        det, stages = make_detector(name, threads=threads, score_threshold=SCORE, device=device), _learned_stages
+    elif name in ("torch", "torch-compiled"):
+        det = make_detector("torch", threads=threads, score_threshold=SCORE, device=device,
+                            compile=name == "torch-compiled")
+        stages = _learned_stages
     else:
         det, stages = make_detector(name, threads=threads, score_threshold=SCORE), _learned_stages
     tracker = Tracker()
@@ -201,7 +205,8 @@ def main(argv=None) -> int:
                     help="dataset folder of `v2i dataset` with --backgrounds (default: data/heldout in the repository)")
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
-    ap.add_argument("--backends", nargs="+", default=["torch", "onnx", "classical"])
+    ap.add_argument("--backends", nargs="+", default=["torch", "torch-compiled", "onnx", "classical"],
+                    choices=["torch", "torch-compiled", "onnx", "classical"])
     ap.add_argument("--json", type=Path, default=RESULTS / "perception.json")
     ap.add_argument("--busy", type=int, nargs="+", default=[0, 1],
                     help="busy cores beside the learned backends (default: 0 and 1)")

@@ -77,6 +77,8 @@ def make_rsu_detector(settings: Settings):
         options = {"threads": d.threads, "score_threshold": d.score_threshold}
         if d.weights:
             options["weights"] = d.weights
+        if d.compile:
+            options["compile"] = True
     try:
         detector = make_detector(d.backend, **options)
         detector.detect(np.zeros((48, 64, 3), np.uint8))  # first inference builds the graph: not in a frame's time

@@ -100,6 +100,9 @@ class DetectorSettings:
         "--score-threshold", low=0.0, high=1.0))
     background: str | None = field(default=None, metadata=_key(
         "classical backend: empty-scene image (default: learn the background, MOG2)"))
+    compile: bool = field(default=False, metadata=_key(
+        "torch backend: run the network through torch.compile (about 1.5x faster on a CPU core; compiling takes "
+        "seconds at start and needs a C++ compiler)"))
 
 
 @dataclass
@@ -438,6 +441,9 @@ def build_settings(flags: dict[str, Any] | None = None, config: dict[str, Any] |
         t = settings.tracker
         problems.append(("tracker.confirm_hits", f"must be <= tracker.confirm_window ({t.confirm_window}), "
                                                  f"got {t.confirm_hits}"))
+    if settings.detector.compile and settings.detector.backend != "torch":
+        problems.append(("detector.compile", f"only the torch backend compiles its network; detector.backend is "
+                                             f"{settings.detector.backend!r}"))
     if settings.security.mode == "signed" and not settings.security.pki_dir:
         problems.append(("security.pki_dir", "signed messages need the folder of the station's certificate and key "
                                              "(`v2i pki init DIR --station NAME:0x7f,0x82`), or security.mode = "

@@ -175,3 +175,33 @@ def test_torch_on_cuda_finds_the_cpu_boxes(rendered):
     dc, dg = cpu.detect(rgb), gpu.detect(rgb)
     assert dc and [d.label for d in dc] == [d.label for d in dg]
     assert np.allclose([d.box for d in dc], [d.box for d in dg], atol=0.5)
+
+
+@pytest.mark.skipif(__import__("shutil").which("c++") is None and __import__("shutil").which("g++") is None,
+                    reason="no C++ compiler on this machine: torch.compile cannot build the network's CPU code")
+def test_the_compiled_torch_network_finds_the_eager_boxes(rendered):
+    """`compile=True` runs the network through torch.compile, compiled when the detector is built (not on the
+    first frame); same boxes, labels and scores as the eager network on the case-study frame."""
+    _, rgb, truth = rendered
+    eager, fast = make_detector("torch", threads=1), make_detector("torch", threads=1, compile=True)
+    assert fast.compiled and not eager.compiled and fast.cfg == eager.cfg
+    de, df = eager.detect(rgb), fast.detect(rgb)
+    assert {d.label for d in de if d.score > 0.5} == {"car", "emergency"}
+    assert [d.label for d in de] == [d.label for d in df]
+    assert np.allclose([d.box for d in de], [d.box for d in df], atol=0.05)
+    assert np.allclose([d.score for d in de], [d.score for d in df], atol=1e-4)
+
+
+def test_a_network_that_does_not_compile_is_a_detector_error(monkeypatch):
+    """Without a working C++ toolchain inductor fails inside the first call; the detector says what to do."""
+    import torch
+
+    def broken(net, **kw):
+        def call(x):
+            raise RuntimeError("InductorError: CppCompileError: C++ compile error\nmore")
+        return call
+
+    monkeypatch.setattr(torch, "compile", broken)
+    with pytest.raises(DetectorError, match=r"could not compile the network \(RuntimeError: InductorError: "
+                                            r"CppCompileError: C\+\+ compile error\).*onnx backend"):
+        make_detector("torch", threads=1, compile=True)

@@ -7,6 +7,7 @@ in process for the precedence rules.
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import uuid
@@ -183,3 +184,19 @@ def test_the_ground_noise_and_ranges_are_checked_and_match_the_geometry_s_defaul
     assert "must be >= perception.max_range_m (60.0), got 50.0" in dict(err.value.problems)["perception.track_range_m"]
     s = build_settings({"perception.track_range_m": "60", "perception.ground_covariance": "true"}, base, {})
     assert s.perception.track_range_m == 60.0 and s.perception.ground_covariance is True
+
+
+def test_only_the_torch_backend_compiles():
+    """detector.compile reaches the torch backend; with another backend it is a named error, not ignored."""
+    base = {"security": {"mode": "unsecured"}}
+    s = build_settings({"detector.backend": "torch", "detector.compile": "true"}, base, {})
+    assert s.detector.compile is True
+    assert build_settings({}, base, {}).detector.compile is False
+    if shutil.which("c++") or shutil.which("g++"):  # the app builds its detector compiled (it needs a compiler)
+        from rsu_app.app import make_rsu_detector
+
+        assert make_rsu_detector(s).compiled
+    with pytest.raises(ConfigError) as err:
+        build_settings({"detector.compile": "true"}, base, {})
+    assert err.value.problems == [("detector.compile", "only the torch backend compiles its network; "
+                                                       "detector.backend is 'onnx'")]

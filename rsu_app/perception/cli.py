@@ -60,6 +60,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--threads", type=int, default=1,
                    help="CPU threads of the detector (default 1: more oversubscribes a machine whose other "
                         "cores are busy; benchmarks/perception.py measures 1 and 2)")
+    e.add_argument("--compile", action="store_true",
+                   help="torch: run the network through torch.compile (faster; compiling takes seconds first)")
     e.add_argument("--score-threshold", type=float, default=0.05,
                    help="lowest score kept (low for AP; recall bins use it too)")
     e.add_argument("--ground", action="store_true",
@@ -154,6 +156,10 @@ def _cmd_eval(args) -> int:
         else:
             opts.update(weights=args.weights, score_threshold=args.score_threshold)
             opts["threads"] = args.threads
+        if args.compile:
+            if args.detector != "torch":
+                raise DetectorError(f"--compile: only the torch backend compiles its network, not {args.detector!r}")
+            opts["compile"] = True
         det = make_detector(args.detector, **opts)
     except (DatasetError, DetectorError) as exc:
         print(f"error: {exc}", file=sys.stderr)
