@@ -46,10 +46,10 @@ def compiled(net: CenterNet, device: torch.device) -> torch.nn.Module:
     camera frame.
 
     Why opt-in (`compile=True`, the RSU app's `detector.compile`): on one CPU core the compiled network runs
-    about 1.5x faster than the eager one (its elementwise work fused into fewer passes over memory; the
-    outputs are the eager ones, benchmarks/perception.py measures both), but compiling takes seconds when
-    the detector is built (tens of seconds the first time on a machine, a few from inductor's on-disk cache
-    after) and needs a C++ compiler at run time, which a deployed box may not have."""
+    about 1.4-1.6x faster than the eager one (medians; benchmarks/perception.py measures both, and the
+    outputs are the eager ones), but compiling takes seconds when the detector is built (tens of seconds the
+    first time on a machine, a few from inductor's on-disk cache after) and needs a C++ compiler at run
+    time, which a deployed box may not have."""
     W, H = net.cfg.input_size
     try:
         with warnings.catch_warnings(), torch.inference_mode():
