@@ -16,9 +16,13 @@ def rank(row: dict) -> tuple:
     return row["false_track_frames"] + row["id_switches"], -row["min_coverage"], -row["mean_coverage"]
 
 
+def _key(row: dict) -> tuple:
+    return (*rank(row), row["position_median_m"])
+
+
 def order(rows: list[dict]) -> list[dict]:
     """The rows best first: by `rank`, then by median position error."""
-    return sorted(rows, key=lambda r: (*rank(r), r["position_median_m"]))
+    return sorted(rows, key=_key)
 
 
 def select(rows: list[dict], defaults: dict, keep_defaults_m: float = KEEP_DEFAULTS_M) -> dict:
@@ -27,9 +31,8 @@ def select(rows: list[dict], defaults: dict, keep_defaults_m: float = KEEP_DEFAU
     error (changing a default has a cost; a difference below the measurement's resolution does not pay it)."""
     if not rows:
         raise ValueError("no operating points to select from")
-    ranked = order(rows)
-    best = ranked[0]
-    for r in ranked:
+    best = min(rows, key=_key)
+    for r in rows:
         if (r["point"] == defaults and rank(r) == rank(best)
                 and r["position_median_m"] < best["position_median_m"] + keep_defaults_m):
             return r["point"]

@@ -6,8 +6,8 @@ import json
 import pytest
 
 from bridges import v2x
-from master.metrics import (Applications, aoi_metrics, clock_bounds, applied_times, latency_metrics, link_metrics, read_jsonl,
-                            subject_deliveries, with_can_applied)
+from master.metrics import (Applications, aoi_metrics, applied_times, clock_bounds, latency_metrics, link_metrics,
+                            read_jsonl, subject_deliveries, with_can_applied)
 
 
 def record(frame, detect_end, send, arrival, command, counter):

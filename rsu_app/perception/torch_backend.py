@@ -41,7 +41,7 @@ def load_weights(weights: str | Path | dict) -> tuple[CenterNet, dict]:
     return net.eval(), ckpt
 
 
-def compiled(net: CenterNet, device: torch.device) -> torch.nn.Module:
+def compile_network(net: CenterNet, device: torch.device) -> torch.nn.Module:
     """`net` through torch.compile (TorchInductor), compiled here on a blank input rather than on the first
     camera frame.
 
@@ -89,7 +89,7 @@ class TorchDetector:
         self.net.to(self.device)
         self.compiled = bool(compile)
         if compile:
-            self.net = compiled(self.net, self.device)
+            self.net = compile_network(self.net, self.device)
         self.score_threshold, self.top_k = score_threshold, top_k
 
     @torch.inference_mode()
