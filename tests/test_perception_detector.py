@@ -17,6 +17,19 @@ def test_unknown_backend_lists_known():
         make_detector("yolo")
 
 
+@pytest.mark.parametrize("backend,options,match", [
+    ("onnx", {"compile": True}, r"detector 'onnx' does not take option 'compile'; it takes: weights, threads"),
+    ("torch", {"thread": 1}, r"'thread' \(did you mean 'threads'\?\)"),
+    ("classical", {"weights": "w.pt", "thresh": 3},
+     r"does not take options 'weights', 'thresh' \(did you mean 'threshold'\?\); it takes: background"),
+])
+def test_an_option_the_backend_does_not_take_is_named(backend, options, match):
+    """Backends take different options; one a backend does not take is a DetectorError naming each (with a
+    "did you mean") and what the backend takes, raised before anything is loaded, not a bare TypeError."""
+    with pytest.raises(DetectorError, match=match):
+        make_detector(backend, **options)
+
+
 @pytest.mark.parametrize("frame,match", [
     ([[1, 2, 3]], "numpy array"),
     (np.zeros((48, 64), np.uint8), r"shape \(H, W, 3\)"),

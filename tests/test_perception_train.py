@@ -186,7 +186,7 @@ def test_cli_train_eval_export(data, tmp_path, capsys):
     assert main(["eval-detector", "--data", str(data), "--detector", "yolo", "--weights", str(w)]) == 2
     assert "known: classical, onnx, torch" in capsys.readouterr().err
     assert main(["eval-detector", "--data", str(data), "--detector", "onnx", "--compile"]) == 2
-    assert "--compile: only the torch backend compiles its network, not 'onnx'" in capsys.readouterr().err
+    assert "detector 'onnx' does not take option 'compile'" in capsys.readouterr().err
     assert main(["eval-detector", "--data", str(tmp_path / "none")]) == 2
 
 

@@ -10,7 +10,9 @@ classical baseline works without torch installed).
 """
 from __future__ import annotations
 
+import difflib
 import importlib
+import inspect
 import math
 from pathlib import Path
 from dataclasses import dataclass
@@ -85,8 +87,32 @@ def check_frame(rgb) -> np.ndarray:
     return rgb
 
 
+def check_options(name: str, cls: type, options: dict) -> None:
+    """DetectorError listing every option the backend `name` does not take, each with a "did you mean",
+    and the options it does take.
+
+    Why here and not left to Python: the backends take different options (only torch compiles, only the
+    classical one has a background), and a bare TypeError from a constructor names neither the backend
+    nor what it would take; every caller (CLI, RSU app, benchmarks) then had to re-check by hand."""
+    params = inspect.signature(cls.__init__).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return
+    known = [k for k, p in params.items() if k != "self"
+             and p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)]
+    problems = []
+    for key in options:
+        if key not in known:
+            close = difflib.get_close_matches(key, known, n=2)
+            hint = f" (did you mean {' or '.join(map(repr, close))}?)" if close else ""
+            problems.append(f"{key!r}{hint}")
+    if problems:
+        raise DetectorError(f"detector {name!r} does not take option{'s' if len(problems) > 1 else ''} "
+                            f"{', '.join(problems)}; it takes: {', '.join(known)}")
+
+
 def make_detector(name: str, **options) -> Detector:
-    """The detector backend called `name`, constructed with `options`."""
+    """The detector backend called `name`, constructed with `options`; DetectorError for an unknown
+    name, a missing package or an option that backend does not take."""
     try:
         target = BACKENDS[name]
     except KeyError:
@@ -97,4 +123,6 @@ def make_detector(name: str, **options) -> Detector:
     except ImportError as exc:
         raise DetectorError(f"detector {name!r} needs a missing package: {exc.name or exc} "
                             f"(install the 'perception' extra)") from exc
-    return getattr(mod, cls)(**options)
+    backend = getattr(mod, cls)
+    check_options(name, backend, options)
+    return backend(**options)
