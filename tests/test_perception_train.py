@@ -490,3 +490,49 @@ def test_fine_tuning_at_another_input_size_only_when_asked(data, learnt, tmp_pat
     ckpt = torch.load(resized, weights_only=True)
     assert ckpt["config"]["input_size"] == [256, 192] and ckpt["config"]["width"] == 8
     assert make_detector("torch", weights=resized, threads=1).cfg.input_size == (256, 192)
+
+
+def test_widening_keeps_what_the_network_computes_and_then_trains(data, learnt, tmp_path, capsys):
+    """`--deep-width` with `--init`: the checkpoint gets more channels at stride 16 and 32 (with a context
+    branch added at the same time) and computes what it did: exactly without the copies' noise, to the
+    noise with it; the copies then differ from the channels they copy (or they would train as one); the
+    config records the width and loads back in both backends; narrowing is refused naming both widths."""
+    from master.cli import main
+    from rsu_app.perception.model import CenterNet, widen
+    from rsu_app.perception.torch_backend import load_weights
+
+    out, _ = learnt  # width 8: 64 channels at stride 16
+    net, ckpt = load_weights(out)
+    with_ctx = CenterNet(ModelConfig.from_dict({**ckpt["config"], "context": True}))
+    with_ctx.load_state_dict(ckpt["state_dict"], strict=False)
+    with_ctx.ctx[-1].weight.data.normal_(0, 0.05)  # a trained-looking branch, so the widening is checked through it
+    with_ctx.eval()
+    x = torch.rand(1, 3, 144, 192)
+    with torch.inference_mode():
+        before = with_ctx(x)
+        exact = widen(with_ctx, 96, seed=1, noise=0.0).eval()
+        noisy = widen(with_ctx, 96, seed=1).eval()
+        assert exact.cfg.deep == 96 and exact.s16[2][3][0].weight.shape[:2] == (96, 96)
+        for a, b, c in zip(before, exact(x), noisy(x)):
+            assert torch.allclose(a, b, atol=1e-5)
+            assert torch.allclose(a, c, atol=1e-2) and not torch.allclose(a, c, atol=1e-7)
+    w = noisy.s16[0][3][0].weight[:, :, 0, 0]  # the stride-16 stage's first pointwise convolution (96, 32)
+    assert not any(torch.allclose(w[i], w[j]) for i in range(96) for j in range(i))
+    with pytest.raises(ValueError, match="deep_width 32 is narrower than the network's 64"):
+        widen(net, 32)
+    tuned = train(data, None, epochs=1, seed=0, lr=1e-3, init=out, deep_width=96,
+                  **{k: v for k, v in TINY.items() if k not in ("width", "input_size")})
+    assert tuned["config"]["deep_width"] == 96 and tuned["training"]["deep_width"] == 96
+    assert load_weights(tuned)[0].cfg.deep == 96
+    with pytest.raises(ValueError, match="deep_width 48: the checkpoint .* already has 64 channels at stride 16"):
+        train(data, None, epochs=1, init=out, deep_width=48,
+              **{k: v for k, v in TINY.items() if k not in ("width", "input_size")})
+    wide = tmp_path / "deep.pt"
+    assert main(["train-detector", "--data", str(data), "--init", str(out), "--out", str(wide), "--epochs", "1",
+                 "--threads", "1", "--deep-width", "80"]) == 0
+    capsys.readouterr()
+    assert torch.load(wide, weights_only=True)["config"]["deep_width"] == 80
+    assert make_detector("onnx", weights=wide, threads=1).cfg.deep == 80  # exports and runs in onnxruntime
+    assert main(["train-detector", "--data", str(data), "--out", str(tmp_path / "x.pt"), "--epochs", "1",
+                 "--width", "8", "--deep-width", "32"]) == 2
+    assert "deep_width must be an integer >= 8 x width (64), got 32" in capsys.readouterr().err

@@ -30,6 +30,7 @@ class ModelConfig:
     classes: tuple[str, ...] = CLASSES
     heads: str = "separable"             # head blocks: "separable" (depthwise 3x3 + 1x1) or "conv" (full 3x3)
     context: bool = False                # a stride-32 context branch (CenterNet.ctx) widens what each cell sees
+    deep_width: int | None = None        # channels at stride 16 and 32 (None: 8 x width); see CenterNet
     stride: int = field(default=4, init=False)  # output stride (fixed by the architecture)
 
     def __post_init__(self):
@@ -41,6 +42,13 @@ class ModelConfig:
             raise ValueError(f"width must be >= 1 and classes non-empty, got {self.width}, {self.classes}")
         if self.heads not in HEADS:
             raise ValueError(f"heads must be one of {sorted(HEADS)}, got {self.heads!r}")
+        if self.deep_width is not None and (not isinstance(self.deep_width, int) or self.deep_width < 8 * self.width):
+            raise ValueError(f"deep_width must be an integer >= 8 x width ({8 * self.width}), got {self.deep_width!r}")
+
+    @property
+    def deep(self) -> int:
+        """Channels of the stride-16 stage and the context branch."""
+        return self.deep_width or 8 * self.width
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -51,9 +59,10 @@ class ModelConfig:
     def from_dict(cls, d: dict) -> "ModelConfig":
         # checkpoints written before `heads` existed used full 3x3 convolutions
         # and those written before `context` existed had no context branch
+        deep = d.get("deep_width")
         return cls(width=int(d["width"]), input_size=tuple(int(x) for x in d["input_size"]),
                    classes=tuple(d["classes"]), heads=str(d.get("heads", "conv")),
-                   context=bool(d.get("context", False)))
+                   context=bool(d.get("context", False)), deep_width=None if deep is None else int(deep))
 
 
 def _conv(cin: int, cout: int, k: int = 3, s: int = 1) -> nn.Sequential:
@@ -86,16 +95,20 @@ class CenterNet(nn.Module):
         self.stem = nn.Sequential(_conv(3, c, 3, 2), _dw(c, c))                 # /2
         self.s4 = nn.Sequential(_dw(c, 2 * c, 2), _dw(2 * c, 2 * c))            # /4
         self.s8 = nn.Sequential(_dw(2 * c, 4 * c, 2), _dw(4 * c, 4 * c))        # /8
-        self.s16 = nn.Sequential(_dw(4 * c, 8 * c, 2), _dw(8 * c, 8 * c), _dw(8 * c, 8 * c))  # /16
+        # Why `deep_width`: the stride-16 and -32 layers are where the network tells an emergency vehicle from
+        # a car and a half-hidden vehicle from background, and at 1/256 of the input's cells they are the
+        # cheapest place to add channels (`widen` grows a trained network there without changing its outputs)
+        d = cfg.deep
+        self.s16 = nn.Sequential(_dw(4 * c, d, 2), _dw(d, d), _dw(d, d))  # /16
         if cfg.context:
             # Why: without it a stride-4 cell sees about 140 input pixels, less than a near emergency
             # vehicle's length (300-500 px in the frame), so each end of it can look like a centre. The
             # branch ends in a zero-initialised 1x1 convolution: added to a trained network it changes
             # nothing until fine-tuning teaches it something (`train --init ... --context`).
-            self.ctx = nn.Sequential(_dw(8 * c, 8 * c, 2), _dw(8 * c, 8 * c), nn.Conv2d(8 * c, 8 * c, 1))  # /32
+            self.ctx = nn.Sequential(_dw(d, d, 2), _dw(d, d), nn.Conv2d(d, d, 1))  # /32
             nn.init.zeros_(self.ctx[-1].weight)
             nn.init.zeros_(self.ctx[-1].bias)
-        self.lat16 = _conv(8 * c, 2 * c, 1)
+        self.lat16 = _conv(d, 2 * c, 1)
         self.lat8 = _conv(4 * c, 2 * c, 1)
         self.fuse = _dw(2 * c, 2 * c)
         n = len(cfg.classes)
@@ -117,6 +130,43 @@ class CenterNet(nn.Module):
         up = nn.functional.interpolate(self.lat16(f16), scale_factor=2.0, mode="nearest") + self.lat8(f8)
         f = self.fuse(nn.functional.interpolate(up, scale_factor=2.0, mode="nearest") + f4)
         return torch.sigmoid(self.heat(f)), self.size(f), self.offset(f)
+
+
+def widen(net: CenterNet, deep_width: int, seed: int = 0, noise: float = 1e-3) -> CenterNet:
+    """A copy of `net` (eval or train mode alike) with `deep_width` channels at stride 16 and 32, computing
+    the same outputs (to `noise`), so that fine-tuning starts from what `net` learnt (Net2Net's widening).
+
+    Each new channel copies an existing one (chosen with `seed`): its incoming weights and BatchNorm
+    statistics are the copied channel's, and every layer reading the widened channels divides the weights
+    it applies to a channel and its copies by how many there are, so their sum is what the one channel
+    gave. Copies with identical weights would get identical gradients and never become different
+    features: the copies' incoming weights get relative noise of `noise` (0: exact)."""
+    old = net.cfg.deep
+    if deep_width < old:
+        raise ValueError(f"widen: deep_width {deep_width} is narrower than the network's {old}")
+    cfg = ModelConfig.from_dict({**net.cfg.to_dict(), "deep_width": deep_width})
+    big = CenterNet(cfg)
+    gen = torch.Generator().manual_seed(seed)
+    pick = torch.cat([torch.arange(old), torch.randint(0, old, (deep_width - old,), generator=gen)])
+    copies = torch.bincount(pick, minlength=old).float()[pick]  # how many channels share each one's source
+    state = {}
+    for key, v in net.state_dict().items():
+        target = big.state_dict()[key]
+        if v.shape == target.shape:
+            state[key] = v.clone()
+            continue
+        w = v
+        if w.ndim >= 1 and w.shape[0] == old and target.shape[0] == deep_width:  # the channels a layer makes
+            w = w[pick].clone()
+            if w.ndim == 4 and noise:
+                fresh = torch.arange(deep_width) >= old
+                scale = w[fresh].abs().mean().clamp(min=1e-12)
+                w[fresh] += noise * scale * torch.randn(w[fresh].shape, generator=gen)
+        if w.ndim == 4 and w.shape[1] == old and target.shape[1] == deep_width:  # the channels a layer reads
+            w = w[:, pick] / copies.view(1, -1, 1, 1)
+        state[key] = w
+    big.load_state_dict(state)
+    return big.train(net.training)
 
 
 def fuse_for_inference(net: CenterNet) -> CenterNet:

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from rsu_app.perception.dataset import Dataset, load_dataset
-from rsu_app.perception.model import FORMAT, CenterNet, ModelConfig
+from rsu_app.perception.model import FORMAT, CenterNet, ModelConfig, widen
 
 
 def _geometry(rng: np.random.Generator, img: np.ndarray, cfg: ModelConfig, scale_jitter: float,
@@ -279,7 +279,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
           heads: str = "separable", command: str | None = None, log=None, init: str | Path | dict | None = None,
           max_occlusion: float | None = None, class_weights: dict[str, float] | None = None,
           occluders: float = 0.0, heat_sigma: float = HEAT_SIGMA, context: bool = False,
-          override_input: bool = False) -> dict:
+          override_input: bool = False, deep_width: int | None = None) -> dict:
     """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict.
     `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size.
     `init`: a checkpoint to start from (its width, input size and heads are used; the arguments
@@ -291,7 +291,9 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     centre, where a second peak becomes a second box. `context`: add the stride-32 context branch
     (`CenterNet.ctx`); with `init`, to a checkpoint without one (it starts as a no-op, see the model).
     `override_input`: with `init`, train at `input_size` instead of the checkpoint's (the network is
-    fully convolutional: the same weights run at any input size, and fine-tuning adapts them to a new one)."""
+    fully convolutional: the same weights run at any input size, and fine-tuning adapts them to a new one).
+    `deep_width`: channels at stride 16 and 32 (default 8 x width); with `init`, a checkpoint with fewer is
+    widened first without changing its outputs (`model.widen`), then trained."""
     if epochs < 1 or batch_size < 1 or threads < 1:
         raise ValueError(f"epochs, batch_size and threads must be >= 1, got {epochs}, {batch_size}, {threads}")
     if max_occlusion is not None and not 0.0 <= max_occlusion <= 1.0:
@@ -314,6 +316,10 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
         width, heads = base_net.cfg.width, base_net.cfg.heads
         input_size = input_size if override_input else base_net.cfg.input_size
         context = context or base_net.cfg.context
+        if deep_width is not None and deep_width < base_net.cfg.deep:
+            raise ValueError(f"deep_width {deep_width}: the checkpoint {init} already has {base_net.cfg.deep} "
+                             f"channels at stride 16 (a network can be widened, not narrowed)")
+        deep_width = deep_width or base_net.cfg.deep_width
     if crop is not None:
         crop = (int(crop[0]), int(crop[1]))
         if crop[0] % 16 or crop[1] % 16 or not (0 < crop[0] <= input_size[0] and 0 < crop[1] <= input_size[1]):
@@ -332,12 +338,18 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     torch.manual_seed(seed)
     torch.use_deterministic_algorithms(True)
     rng = np.random.default_rng(seed)
-    cfg = ModelConfig(width=width, input_size=tuple(input_size), heads=heads, context=context)
+    cfg = ModelConfig(width=width, input_size=tuple(input_size), heads=heads, context=context, deep_width=deep_width)
     net = CenterNet(cfg)
     if base is not None:
         # load_weights checked the checkpoint against its own config; the network differs from it at most by
-        # a context branch added here, which keeps its no-op initial weights
-        net.load_state_dict(base["state_dict"], strict=not (context and not base_net.cfg.context))
+        # a context branch added here, which keeps its no-op initial weights, and by more channels at stride 16
+        strict = not (context and not base_net.cfg.context)
+        if cfg.deep > base_net.cfg.deep:
+            grown = CenterNet(ModelConfig.from_dict({**base_net.cfg.to_dict(), "context": context}))
+            grown.load_state_dict(base["state_dict"], strict=strict)
+            net.load_state_dict(widen(grown, cfg.deep, seed=seed).state_dict())
+        else:
+            net.load_state_dict(base["state_dict"], strict=strict)
     cw = (torch.tensor([float(class_weights.get(c, 1.0)) for c in cfg.classes]) if class_weights else None)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     steps_per_epoch = math.ceil(len(ds) / batch_size)
@@ -376,7 +388,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
             "augment": augment, "crop": list(crop) if crop else None, "width": width, "heads": heads,
             "input_size": list(input_size), "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
             "max_occlusion": max_occlusion, "class_weights": class_weights or None, "occluders": occluders,
-            "heat_sigma": heat_sigma, "context": context,
+            "heat_sigma": heat_sigma, "context": context, "deep_width": deep_width,
             "init": None if base is None else {
                 "command": base.get("training", {}).get("command"),
                 "dataset_sha256": base.get("training", {}).get("dataset_sha256"),
