@@ -95,9 +95,9 @@ class CenterNet(nn.Module):
         self.stem = nn.Sequential(_conv(3, c, 3, 2), _dw(c, c))                 # /2
         self.s4 = nn.Sequential(_dw(c, 2 * c, 2), _dw(2 * c, 2 * c))            # /4
         self.s8 = nn.Sequential(_dw(2 * c, 4 * c, 2), _dw(4 * c, 4 * c))        # /8
-        # Why `deep_width`: the stride-16 and -32 layers are where the network tells an emergency vehicle from
-        # a car and a half-hidden vehicle from background, and at 1/256 of the input's cells they are the
-        # cheapest place to add channels (`widen` grows a trained network there without changing its outputs)
+        # Why `deep_width`: at 1/256 of the input's cells the stride-16 and -32 layers are the cheapest place
+        # to add channels (`widen` grows a trained network there without changing its outputs). Measured so
+        # far (RECIPE.md, stages 10 and 11): 256 instead of 128 fits the training frames better, not new ones
         d = cfg.deep
         self.s16 = nn.Sequential(_dw(4 * c, d, 2), _dw(d, d), _dw(d, d))  # /16
         if cfg.context:
