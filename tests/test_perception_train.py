@@ -462,6 +462,12 @@ def test_context_branch_starts_as_a_no_op_on_a_trained_network_and_then_learns(d
     other = {**ckpt, "state_dict": {k: v for k, v in ckpt["state_dict"].items() if not k.startswith("heat.")}}
     with pytest.raises(DetectorError, match="do not fit the network their config describes: [0-9]+ missing \\(heat"):
         train(data, None, epochs=1, init=other, **{k: v for k, v in TINY.items() if k not in ("width", "input_size")})
+    for config, why in (({**ckpt["config"], "deep_width": 32}, "deep_width must be an integer >= 8 x width"),
+                        ({**ckpt["config"], "deep_width": "wide"}, "invalid literal for int"),
+                        ({k: v for k, v in ckpt["config"].items() if k != "width"}, "no 'width'"),
+                        ("garbage", "")):
+        with pytest.raises(DetectorError, match=f"weights: the checkpoint's config does not describe a network: {why}"):
+            load_weights({**ckpt, "config": config})
     resized = {**ckpt, "config": {**ckpt["config"], "width": 16}}
     shape = r"describes: [0-9]+ of another shape \(stem.0.0.weight \(8, 3, 3, 3\) \(the network's: \(16, 3, 3, 3\)\)"
     with pytest.raises(DetectorError, match=shape):

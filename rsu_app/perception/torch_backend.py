@@ -26,8 +26,12 @@ def load_weights(weights: str | Path | dict) -> tuple[CenterNet, dict]:
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise DetectorError(f"weights: expected a {FORMAT!r} checkpoint, got format "
                             f"{ckpt.get('format') if isinstance(ckpt, dict) else type(ckpt).__name__!r}")
-    net = CenterNet(ModelConfig.from_dict(ckpt["config"]))
     name = "weights" if isinstance(weights, dict) else str(weights)
+    try:
+        net = CenterNet(ModelConfig.from_dict(ckpt["config"]))
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:  # a hand-edited or foreign config: say which file and key
+        what = f"no {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise DetectorError(f"{name}: the checkpoint's config does not describe a network: {what}") from None
     state, own = ckpt["state_dict"], net.state_dict()
     problems = {"missing": [k for k in own if k not in state],
                 "unexpected": [k for k in state if k not in own],
