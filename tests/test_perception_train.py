@@ -542,3 +542,54 @@ def test_widening_keeps_what_the_network_computes_and_then_trains(data, learnt, 
     assert main(["train-detector", "--data", str(data), "--out", str(tmp_path / "x.pt"), "--epochs", "1",
                  "--width", "8", "--deep-width", "32"]) == 2
     assert "deep_width must be an integer >= 8 x width (64), got 32" in capsys.readouterr().err
+
+
+def test_coordinate_channels_tell_cells_where_they_are_and_start_as_a_no_op(data, learnt, tmp_path, capsys):
+    """`--coords`: each stride-16 cell gets its place in the picture (x, y in -1..1, left and top -1), so that
+    a cell can learn how far the border is (a cut vehicle's box ends there). Added to a trained network it
+    changes nothing until trained; with weights, a featureless picture gives different outputs in cells far
+    from the border (without it, only the padding tells cells apart, so those are equal); one epoch moves it
+    off zero; the config records it, it survives widening and exports to onnx with the same outputs."""
+    from master.cli import main
+    from rsu_app.perception.model import CenterNet, picture_grid, widen
+    from rsu_app.perception.onnx_backend import export_onnx
+    from rsu_app.perception.torch_backend import load_weights
+
+    g = picture_grid(torch.zeros(1, 5, 3, 4))
+    assert g.shape == (1, 2, 3, 4)
+    assert torch.allclose(g[0, 0, 1], torch.tensor([-0.75, -0.25, 0.25, 0.75]))  # x: across, the same on every row
+    assert torch.allclose(g[0, 1, :, 2], torch.tensor([-2 / 3, 0.0, 2 / 3]))       # y: down
+    out, _ = learnt
+    plain, ckpt = load_weights(out)
+    placed = CenterNet(ModelConfig.from_dict({**ckpt["config"], "coords": True}))
+    missing, unexpected = placed.load_state_dict(ckpt["state_dict"], strict=False)
+    assert not unexpected and sorted(missing) == ["coords.bias", "coords.weight"]
+    placed.eval()
+    grey = torch.full((1, 3, 288, 384), 0.45)  # 24x18 cells at stride 16: the middle ones see no border
+    with torch.inference_mode():
+        for a, b in zip(plain(grey), placed(grey)):
+            assert torch.equal(a, b)
+        mid = (slice(None), slice(None), slice(30, 42), slice(40, 56))  # stride-4 cells far from every border
+        flat = plain(grey)[1][mid]
+        assert torch.allclose(flat, flat[..., :1, :1].expand_as(flat), atol=1e-6)
+        placed.coords.weight.normal_(0, 0.5)
+        size = placed(grey)[1][mid]
+        assert (size[0, 0, 0, -1] - size[0, 0, 0, 0]).abs() > 1e-3  # the same grey, told apart by place alone
+        assert torch.allclose(widen(placed, 80, seed=2, noise=0.0).eval()(grey)[1], placed(grey)[1], atol=1e-5)
+    tuned = train(data, None, epochs=1, seed=0, lr=1e-3, init=out, coords=True,
+                  **{k: v for k, v in TINY.items() if k not in ("width", "input_size")})
+    assert tuned["config"]["coords"] is True and tuned["training"]["coords"] is True
+    assert float(tuned["state_dict"]["coords.weight"].abs().max()) > 0
+    net, _ = load_weights(tuned)
+    assert net.cfg.coords and load_weights(ckpt)[0].cfg.coords is False  # older checkpoints: no coordinates
+    w = tmp_path / "coords.pt"
+    torch.save(tuned, w)
+    t = make_detector("torch", weights=w, threads=1, score_threshold=0.1)
+    o = make_detector("onnx", weights=export_onnx(w), threads=1, score_threshold=0.1)
+    for s in load_dataset(data).samples[:2]:
+        assert all(np.abs(x - y).max() < 1e-4 for x, y in zip(t.raw(s.load())[:3], o.raw(s.load())[:3]))
+    cli = tmp_path / "cli.pt"
+    assert main(["train-detector", "--data", str(data), "--init", str(out), "--out", str(cli), "--epochs", "1",
+                 "--threads", "1", "--coords"]) == 0
+    capsys.readouterr()
+    assert torch.load(cli, weights_only=True)["config"]["coords"] is True

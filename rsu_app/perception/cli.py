@@ -47,6 +47,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--context", action="store_true",
                    help="add a stride-32 context branch (a wider view for each output cell); with --init it is "
                         "added to the checkpoint's network as a no-op, then trained")
+    t.add_argument("--coords", action="store_true",
+                   help="give each stride-16 cell its place in the picture (x, y channels), so it can tell how far "
+                        "the border is; with --init added as a no-op, then trained")
     t.add_argument("--deep-width", type=int, metavar="N",
                    help="channels at stride 16 and 32 (default 8 x --width); with --init a checkpoint with fewer "
                         "is widened first, computing what it did, then trained")
@@ -103,7 +106,7 @@ def _cmd_train(args) -> int:
                      input_size=input_size, heads=args.heads, init=args.init, max_occlusion=args.max_occlusion,
                      class_weights=class_weights, occluders=args.occluders,
                      **({} if args.heat_sigma is None else {"heat_sigma": args.heat_sigma}), context=args.context,
-                     override_input=args.input is not None, deep_width=args.deep_width,
+                     override_input=args.input is not None, deep_width=args.deep_width, coords=args.coords,
                      command=command or f"v2i train-detector --data {args.data} --out {args.out} "
                                         f"--epochs {args.epochs} --seed {args.seed} --threads {args.threads}")
     except (DatasetError, ValueError) as exc:

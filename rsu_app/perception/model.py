@@ -31,6 +31,7 @@ class ModelConfig:
     heads: str = "separable"             # head blocks: "separable" (depthwise 3x3 + 1x1) or "conv" (full 3x3)
     context: bool = False                # a stride-32 context branch (CenterNet.ctx) widens what each cell sees
     deep_width: int | None = None        # channels at stride 16 and 32 (None: 8 x width); see CenterNet
+    coords: bool = False                 # tell each stride-16 cell where it is in the picture (CenterNet.coords)
     stride: int = field(default=4, init=False)  # output stride (fixed by the architecture)
 
     def __post_init__(self):
@@ -62,7 +63,8 @@ class ModelConfig:
         deep = d.get("deep_width")
         return cls(width=int(d["width"]), input_size=tuple(int(x) for x in d["input_size"]),
                    classes=tuple(d["classes"]), heads=str(d.get("heads", "conv")),
-                   context=bool(d.get("context", False)), deep_width=None if deep is None else int(deep))
+                   context=bool(d.get("context", False)), deep_width=None if deep is None else int(deep),
+                   coords=bool(d.get("coords", False)))
 
 
 def _conv(cin: int, cout: int, k: int = 3, s: int = 1) -> nn.Sequential:
@@ -81,6 +83,14 @@ def _head(c: int, n_out: int, kind: str) -> nn.Sequential:
     block = _dw(c, c) if kind == "separable" else _conv(c, c)
     return nn.Sequential(block, nn.Conv2d(c, n_out, 1))
 
+
+
+def picture_grid(f: torch.Tensor) -> torch.Tensor:
+    """(1, 2, h, w): each cell's centre as (x, y) in -1..1 over a feature map `f` (N, C, h, w), left/top -1."""
+    h, w = f.shape[-2:]
+    xs = (torch.arange(w, dtype=f.dtype, device=f.device) + 0.5) * (2.0 / w) - 1.0
+    ys = (torch.arange(h, dtype=f.dtype, device=f.device) + 0.5) * (2.0 / h) - 1.0
+    return torch.stack([xs.view(1, w).expand(h, w), ys.view(h, 1).expand(h, w)]).unsqueeze(0)
 
 
 class CenterNet(nn.Module):
@@ -108,6 +118,15 @@ class CenterNet(nn.Module):
             self.ctx = nn.Sequential(_dw(d, d, 2), _dw(d, d), nn.Conv2d(d, d, 1))  # /32
             nn.init.zeros_(self.ctx[-1].weight)
             nn.init.zeros_(self.ctx[-1].bias)
+        if cfg.coords:
+            # Why: a truth is the visible box, so a near vehicle cut by the picture's border has a size target
+            # that ends there, and a cell at the centre of a box 300 px wide cannot see (at stride 4) how far
+            # the border is: its boxes come out short. Two channels, x and y in -1..1 over the network input,
+            # mixed in by a 1x1 convolution before the context branch; zero-initialised like it, so added to
+            # a trained network it changes nothing until fine-tuning (`train --init ... --coords`).
+            self.coords = nn.Conv2d(2, d, 1)
+            nn.init.zeros_(self.coords.weight)
+            nn.init.zeros_(self.coords.bias)
         self.lat16 = _conv(d, 2 * c, 1)
         self.lat8 = _conv(4 * c, 2 * c, 1)
         self.fuse = _dw(2 * c, 2 * c)
@@ -125,6 +144,8 @@ class CenterNet(nn.Module):
         f4 = self.s4(self.stem(x))
         f8 = self.s8(f4)
         f16 = self.s16(f8)
+        if self.cfg.coords:
+            f16 = f16 + self.coords(picture_grid(f16))
         if self.cfg.context:
             f16 = f16 + nn.functional.interpolate(self.ctx(f16), size=f16.shape[-2:], mode="nearest")
         up = nn.functional.interpolate(self.lat16(f16), scale_factor=2.0, mode="nearest") + self.lat8(f8)

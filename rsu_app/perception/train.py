@@ -279,7 +279,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
           heads: str = "separable", command: str | None = None, log=None, init: str | Path | dict | None = None,
           max_occlusion: float | None = None, class_weights: dict[str, float] | None = None,
           occluders: float = 0.0, heat_sigma: float = HEAT_SIGMA, context: bool = False,
-          override_input: bool = False, deep_width: int | None = None) -> dict:
+          override_input: bool = False, deep_width: int | None = None, coords: bool = False) -> dict:
     """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict.
     `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size.
     `init`: a checkpoint to start from (its width, input size and heads are used; the arguments
@@ -293,7 +293,8 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     `override_input`: with `init`, train at `input_size` instead of the checkpoint's (the network is
     fully convolutional: the same weights run at any input size, and fine-tuning adapts them to a new one).
     `deep_width`: channels at stride 16 and 32 (default 8 x width); with `init`, a checkpoint with fewer is
-    widened first without changing its outputs (`model.widen`), then trained."""
+    widened first without changing its outputs (`model.widen`), then trained. `coords`: tell each stride-16
+    cell where it is in the picture (`CenterNet.coords`; added to an `init` checkpoint, it starts as a no-op)."""
     if epochs < 1 or batch_size < 1 or threads < 1:
         raise ValueError(f"epochs, batch_size and threads must be >= 1, got {epochs}, {batch_size}, {threads}")
     if max_occlusion is not None and not 0.0 <= max_occlusion <= 1.0:
@@ -316,6 +317,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
         width, heads = base_net.cfg.width, base_net.cfg.heads
         input_size = input_size if override_input else base_net.cfg.input_size
         context = context or base_net.cfg.context
+        coords = coords or base_net.cfg.coords
         if deep_width is not None and deep_width < base_net.cfg.deep:
             raise ValueError(f"deep_width {deep_width}: the checkpoint {init} already has {base_net.cfg.deep} "
                              f"channels at stride 16 (a network can be widened, not narrowed)")
@@ -338,14 +340,16 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     torch.manual_seed(seed)
     torch.use_deterministic_algorithms(True)
     rng = np.random.default_rng(seed)
-    cfg = ModelConfig(width=width, input_size=tuple(input_size), heads=heads, context=context, deep_width=deep_width)
+    cfg = ModelConfig(width=width, input_size=tuple(input_size), heads=heads, context=context, deep_width=deep_width,
+                      coords=coords)
     net = CenterNet(cfg)
     if base is not None:
         # load_weights checked the checkpoint against its own config; the network differs from it at most by
-        # a context branch added here, which keeps its no-op initial weights, and by more channels at stride 16
-        strict = not (context and not base_net.cfg.context)
+        # a context branch or coordinate channels added here, which keep their no-op initial weights, and by
+        # more channels at stride 16
+        strict = not ((context and not base_net.cfg.context) or (coords and not base_net.cfg.coords))
         if cfg.deep > base_net.cfg.deep:
-            grown = CenterNet(ModelConfig.from_dict({**base_net.cfg.to_dict(), "context": context}))
+            grown = CenterNet(ModelConfig.from_dict({**base_net.cfg.to_dict(), "context": context, "coords": coords}))
             grown.load_state_dict(base["state_dict"], strict=strict)
             net.load_state_dict(widen(grown, cfg.deep, seed=seed).state_dict())
         else:
@@ -389,6 +393,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
             "input_size": list(input_size), "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
             "max_occlusion": max_occlusion, "class_weights": class_weights or None, "occluders": occluders,
             "heat_sigma": heat_sigma, "context": context, "deep_width": deep_width,
+            "coords": coords,
             "init": None if base is None else {
                 "command": base.get("training", {}).get("command"),
                 "dataset_sha256": base.get("training", {}).get("dataset_sha256"),
