@@ -1,6 +1,7 @@
 """Shared fixtures: the project's built FMUs and a helper to write scenario files."""
 from __future__ import annotations
 
+import shutil
 import textwrap
 from pathlib import Path
 
@@ -21,6 +22,11 @@ def fixture_path(relative: str) -> Path:
         raise FileNotFoundError(f"test data {path} is missing (tests/fixtures/README.md lists every file the "
                                 "tests carry and where it comes from)")
     return path
+
+
+def has_cxx_compiler() -> bool:
+    """Whether torch.compile can build CPU code here (it needs a C++ compiler on PATH)."""
+    return shutil.which("c++") is not None or shutil.which("g++") is not None
 
 
 @pytest.fixture(scope="session")

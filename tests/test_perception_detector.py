@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import has_cxx_compiler
 
 from rsu_app.perception import Detection, DetectorError, make_detector
 from rsu_app.perception.evaluate import iou_matrix
@@ -190,7 +191,7 @@ def test_torch_on_cuda_finds_the_cpu_boxes(rendered):
     assert np.allclose([d.box for d in dc], [d.box for d in dg], atol=0.5)
 
 
-@pytest.mark.skipif(__import__("shutil").which("c++") is None and __import__("shutil").which("g++") is None,
+@pytest.mark.skipif(not has_cxx_compiler(),
                     reason="no C++ compiler on this machine: torch.compile cannot build the network's CPU code")
 def test_the_compiled_torch_network_finds_the_eager_boxes(rendered):
     """`compile=True` runs the network through torch.compile, compiled when the detector is built (not on the

@@ -7,12 +7,12 @@ in process for the precedence rules.
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 import uuid
 
 import pytest
+from conftest import has_cxx_compiler
 
 from rsu_app.config import SCHEMA, ConfigError, build_settings
 
@@ -192,7 +192,7 @@ def test_only_the_torch_backend_compiles():
     s = build_settings({"detector.backend": "torch", "detector.compile": "true"}, base, {})
     assert s.detector.compile is True
     assert build_settings({}, base, {}).detector.compile is False
-    if shutil.which("c++") or shutil.which("g++"):  # the app builds its detector compiled (it needs a compiler)
+    if has_cxx_compiler():  # the app builds its detector compiled (it needs a compiler)
         from rsu_app.app import make_rsu_detector
 
         assert make_rsu_detector(s).compiled
