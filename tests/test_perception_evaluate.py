@@ -110,6 +110,40 @@ def test_mismatched_lengths():
         evaluate_detections(_ds([[], []]), [[]])
 
 
+
+def test_ap50_interval_resamples_images_and_narrows_with_more_of_them():
+    """`bootstrap`: a 95 % interval of AP50 from image resamples. Each image holds one car; the detector finds
+    it in every other image (AP50 51/101, recall 1/2). Resampling images, recall is a binomial share, so the
+    interval's width is about 4 standard errors, 4 sqrt(0.25 / N): 0.41 for 24 images, 0.1 for 400. Perfect
+    boxes give [1, 1]; the same seed the same interval; emergency vehicles absent: no interval for them."""
+    from rsu_app.perception.evaluate import bootstrap_ap50
+
+    def case(n):
+        ds = _ds([[_t((10, 10, 50, 40))] for _ in range(n)])
+        return ds, [[_d((10, 10, 50, 40), 0.5 + i / (4 * n))] if i % 2 == 0 else [] for i in range(n)]
+
+    widths = {}
+    for n in (24, 400):
+        ds, dets = case(n)
+        r = evaluate_detections(ds, dets, bootstrap=1000, seed=1)
+        lo, hi = r.ap50_interval["car"]
+        assert r.ap50["car"] == pytest.approx(51 / 101) and lo < r.ap50["car"] < hi
+        assert r.ap50_interval["overall"] == r.ap50_interval["car"] and "emergency" not in r.ap50_interval
+        assert r.bootstrap == 1000 and "AP50 95 % interval (1000 image resamples)" in r.table()
+        widths[n] = hi - lo
+        assert evaluate_detections(ds, dets, bootstrap=1000, seed=1).ap50_interval == r.ap50_interval
+    assert widths[24] == pytest.approx(4 * math.sqrt(0.25 / 24), rel=0.25)
+    assert widths[400] == pytest.approx(4 * math.sqrt(0.25 / 400), rel=0.25)
+    ds = _ds([[_t((10, 10, 50, 40)), _t((100, 100, 180, 150), "emergency")], [_t((0, 0, 20, 20))]])
+    perfect = [[_d((10, 10, 50, 40), 0.9), _d((100, 100, 180, 150), 0.8, "emergency")], [_d((0, 0, 20, 20), 0.7)]]
+    assert evaluate_detections(ds, perfect, bootstrap=50).ap50_interval == {
+        "car": [1.0, 1.0], "emergency": [1.0, 1.0], "overall": [1.0, 1.0]}
+    assert evaluate_detections(ds, perfect).ap50_interval == {}  # off unless asked
+    with pytest.raises(ValueError, match="bootstrap: the number of resamples must be >= 0, got -1"):
+        evaluate_detections(ds, perfect, bootstrap=-1)
+    with pytest.raises(ValueError, match="must be >= 1, got 0"):
+        bootstrap_ap50({}, 0)
+
 # -- ground error of the boxes ----------------------------------------------------------------------------------
 def _ground_case():
     """The case study's RSU camera and three vehicles on the south road (west of the pole): their exact boxes

@@ -174,6 +174,12 @@ def test_cli_train_eval_export(data, tmp_path, capsys):
     assert main(["eval-detector", "--data", str(data), "--weights", str(w), "--json", "--threads", "1"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["images"] == 12 and set(rep["ap50"]) == {"car", "emergency", "overall"}
+    assert rep["ap50_interval"] == {} and rep["bootstrap"] == 0
+    assert main(["eval-detector", "--data", str(data), "--weights", str(w), "--json", "--bootstrap", "200"]) == 0
+    ci = json.loads(capsys.readouterr().out)["ap50_interval"]
+    assert set(ci) >= {"car", "overall"} and all(0.0 <= lo <= hi <= 1.0 for lo, hi in ci.values())
+    assert main(["eval-detector", "--data", str(data), "--weights", str(w), "--bootstrap", "-5"]) == 2
+    assert "--bootstrap -5: the number of resamples must be >= 0" in capsys.readouterr().err
     # --ground needs what a rendered set has (tests/test_perception_evaluate.py scores the ground error)
     assert main(["eval-detector", "--data", str(data), "--weights", str(w), "--ground"]) == 2
     assert "has no camera or vehicle positions" in capsys.readouterr().err
