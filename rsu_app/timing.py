@@ -46,6 +46,8 @@ class LatencyModel:
             out["latencies_s"] = {s: self.latencies.get(s, 0.0) for s in STAGE_NAMES}
             if self.missing:
                 out["missing_stages"] = sorted(self.missing)
+        if self.policy == "realtime":
+            out["rtf"] = self.rtf  # simulated seconds per wall second the stages are charged at
         if self.inference_s is not None:
             out["inference_s"] = self.inference_s
         return out

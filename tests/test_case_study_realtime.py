@@ -98,6 +98,9 @@ def test_the_rsu_on_a_box_joined_over_the_veth_link_and_the_run_is_realtime(real
     rsu = meta["participants"]["members"]["rsu"]
     assert rsu["host"] and "process" not in rsu  # it joined by itself, from the other namespace
     assert box["mode"] == "realtime" and box["frames"]["processed"] > 20
+    # the box charged its stages at the run's RTF, which only the master's mapping carries (with 1.0 its send
+    # stamps ran ahead of the run clock)
+    assert box["latency"] == {"mode": "realtime", "policy": "realtime", "rtf": RTF}
     assert realtime_run["metrics"]["time_mode"] == "realtime" and realtime_run["metrics"]["rtf"] == RTF
 
 
