@@ -599,3 +599,47 @@ def test_coordinate_channels_tell_cells_where_they_are_and_start_as_a_no_op(data
                  "--threads", "1", "--coords"]) == 0
     capsys.readouterr()
     assert torch.load(cli, weights_only=True)["config"]["coords"] is True
+
+
+def test_cut_rule_visible_keeps_edge_slivers_the_dataset_labels(data, tmp_path, capsys):
+    """`v2i dataset` labels a vehicle the frame's edge cuts as a vehicle down to `min_visible_pixels`; the
+    first rounds' rule ("half") ignores one the training crop cuts to less than half. Under "visible" the
+    cut vehicle stays an example unless its visible pixels, scaled by the share of its box left in the
+    window, fall below the dataset's threshold (from its info, else 40)."""
+    from dataclasses import replace
+
+    from master.cli import main
+    from rsu_app.perception.dataset import Truth
+    from rsu_app.perception.train import sample_item
+
+    ds = load_dataset(data)
+    s = ds.samples[0]
+    assert s.truths[0].visible_pixels is not None  # read from annotations.json
+    cfg = ModelConfig(width=8, input_size=(192, 144))
+    # a vehicle filling the frame: a 96x64 window keeps 96*64 / (192*144) = 2/9 of its box, and less
+    # than half its height, whatever the window's place
+    frame = (0.0, 0.0, float(s.width), float(s.height))
+
+    def example(rule, visible, crop=(96, 64)):
+        ds.samples[0] = replace(s, truths=[Truth(frame, "car", visible_pixels=visible)])
+        _, heat, weight, _, _, _, mask = sample_item(ds, 0, cfg, np.random.default_rng(0), False, crop=crop,
+                                                     cut_rule=rule)
+        assert (mask.sum() == 1) == (weight.min() == 1.0)  # an example, or ignored: never both
+        return int(mask.sum())
+
+    assert example("half", 10000) == 0
+    assert example("visible", 10000) == 1
+    assert example("visible", 200) == 1       # 200 * 2/9 = 44 visible pixels left >= 40
+    assert example("visible", 150) == 0       # 33 < 40
+    assert example("visible", None) == 1      # without the count: the box's area, the frame's
+    assert example("half", 150, crop=None) == example("visible", 150, crop=None) == 1  # not cut: the label decides
+    ds.info = {**ds.info, "min_visible_pixels": 100}
+    assert example("visible", 200) == 0       # the dataset's own threshold: 44 < 100
+    with pytest.raises(ValueError, match="cut_rule 'visibel' is not one of half, visible .did you mean 'visible'"):
+        train(data, None, epochs=1, cut_rule="visibel", **TINY)
+    w = tmp_path / "v.pt"
+    assert main(["train-detector", "--data", str(data), "--out", str(w), "--epochs", "1", "--threads", "1",
+                 "--width", "8", "--crop", "96x64", "--cut-rule", "visible"]) == 0
+    assert torch.load(w, weights_only=True)["training"]["cut_rule"] == "visible"
+    assert train(data, None, epochs=1, **TINY)["training"]["cut_rule"] == "half"
+    capsys.readouterr()

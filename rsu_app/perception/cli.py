@@ -50,6 +50,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--coords", action="store_true",
                    help="give each stride-16 cell its place in the picture (x, y channels), so it can tell how far "
                         "the border is; with --init added as a no-op, then trained")
+    t.add_argument("--cut-rule", default="half", choices=("half", "visible"),
+                   help="which vehicles the augmentation cuts at the picture's edge are ignored: 'half' (default) "
+                        "those cut to less than half; 'visible' only those left with fewer visible pixels than the "
+                        "dataset labels (its rule for the frame's edge), so slivers at the edge are examples")
     t.add_argument("--deep-width", type=int, metavar="N",
                    help="channels at stride 16 and 32 (default 8 x --width); with --init a checkpoint with fewer "
                         "is widened first, computing what it did, then trained")
@@ -110,6 +114,7 @@ def _cmd_train(args) -> int:
                      class_weights=class_weights, occluders=args.occluders,
                      **({} if args.heat_sigma is None else {"heat_sigma": args.heat_sigma}), context=args.context,
                      override_input=args.input is not None, deep_width=args.deep_width, coords=args.coords,
+                     cut_rule=args.cut_rule,
                      command=command or f"v2i train-detector --data {args.data} --out {args.out} "
                                         f"--epochs {args.epochs} --seed {args.seed} --threads {args.threads}")
     except (DatasetError, ValueError) as exc:

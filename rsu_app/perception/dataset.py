@@ -32,6 +32,7 @@ class Truth:
     position: tuple[float, float] | None = None  # vehicle centre on the ground (world m)
     heading: float | None = None
     size: tuple[float, float, float] | None = None
+    visible_pixels: int | None = None  # the renderer's count of the vehicle's unhidden pixels in the frame
 
 
 @dataclass
@@ -112,7 +113,7 @@ def load_dataset(root: str | Path) -> Dataset:
         by_image[image_id].append(Truth(
             (x, y, x + w, y + h), label, bool(a.get("ignore", False) or a.get("iscrowd", 0)),
             a.get("occlusion"), a.get("distance"), tuple(pos) if pos else None, a.get("heading"),
-            tuple(size) if size else None))
+            tuple(size) if size else None, a.get("visible_pixels")))
     samples = []
     for im in doc["images"]:
         path = root / im["file_name"]

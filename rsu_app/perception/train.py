@@ -15,6 +15,7 @@ weights (fine-tuning on a wider dataset) instead of random ones.
 """
 from __future__ import annotations
 
+import difflib
 import math
 import sys
 import time
@@ -184,13 +185,36 @@ def _crop(rng: np.random.Generator, img: np.ndarray, M: np.ndarray, crop: tuple[
     return np.ascontiguousarray(img[y0:y0 + H, x0:x0 + W]), M
 
 
+#: How a vehicle cut at the picture's edge by the training augmentation (the scale jitter's placement or the
+#: crop) is labelled. "half": ignored when cut to less than half its width or height (the first rounds' rule).
+#: "visible": the dataset's own rule for vehicles the frame's edge cuts, which it labels as vehicles down
+#: to its `min_visible_pixels`: ignored only when the vehicle's visible pixels, scaled by the share of its
+#: box left inside the picture, fall below that. Under "half" a sliver of a vehicle at the edge is a
+#: vehicle in the frames the network is tested on but almost never a training example.
+CUT_RULES = ("half", "visible")
+MIN_VISIBLE_PIXELS = 40  # `v2i dataset`'s threshold, for a dataset whose info does not record it
+
+
+def _cut_away(rule: str, truth, kept_area: float, full_area: float, cut_to_half: bool, info: dict) -> bool:
+    """Whether a truth the augmentation cut (kept_area of its full_area left, network-input pixels) is ignored."""
+    if rule == "half":
+        return cut_to_half
+    if kept_area >= full_area:
+        return False
+    u0, v0, u1, v1 = truth.box
+    visible = truth.visible_pixels if truth.visible_pixels is not None else (u1 - u0) * (v1 - v0)
+    return visible * kept_area / max(full_area, 1e-9) < float(info.get("min_visible_pixels", MIN_VISIBLE_PIXELS))
+
+
 def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generator, augment: bool,
                 scale_jitter: float = 0.3, image: np.ndarray | None = None, crop: tuple[int, int] | None = None,
-                max_occlusion: float | None = None, occluders: float = 0.0, heat_sigma: float = HEAT_SIGMA):
+                max_occlusion: float | None = None, occluders: float = 0.0, heat_sigma: float = HEAT_SIGMA,
+                cut_rule: str = "half"):
     """One training pair: network input (3, H, W) float32 and its targets. `crop` (W, H): train on a
     random window of that size of the (augmented) network-input image instead of all of it.
     `max_occlusion`: truths whose label says they are more hidden than this are ignored. `occluders`: the
-    probability that a vehicle gets a painted occluder (`_occlude`; with augmentation only)."""
+    probability that a vehicle gets a painted occluder (`_occlude`; with augmentation only). `cut_rule`:
+    which vehicles the jitter or the crop cuts at the picture's edge are ignored (`CUT_RULES`)."""
     s = ds.samples[idx]
     img = s.load() if image is None else image
     out, M = _geometry(rng, img, cfg, scale_jitter, augment)
@@ -207,8 +231,8 @@ def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generato
         c0, c1, d0, d1 = max(a0, 0), min(a1, W), max(b0, 0), min(b1, H)
         if c1 - c0 < 1 or d1 - d0 < 1:
             continue
-        # a box cut to less than half its width or height by the crop teaches nothing reliable: ignore it
-        cut = (c1 - c0) < 0.5 * (a1 - a0) or (d1 - d0) < 0.5 * (b1 - b0)
+        cut = _cut_away(cut_rule, t, (c1 - c0) * (d1 - d0), (a1 - a0) * (b1 - b0),
+                        (c1 - c0) < 0.5 * (a1 - a0) or (d1 - d0) < 0.5 * (b1 - b0), ds.info)
         boxes.append((c0, d0, c1, d1))
         labels.append(cls[t.label])
         hidden = max_occlusion is not None and t.occlusion is not None and t.occlusion > max_occlusion
@@ -279,7 +303,8 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
           heads: str = "separable", command: str | None = None, log=None, init: str | Path | dict | None = None,
           max_occlusion: float | None = None, class_weights: dict[str, float] | None = None,
           occluders: float = 0.0, heat_sigma: float = HEAT_SIGMA, context: bool = False,
-          override_input: bool = False, deep_width: int | None = None, coords: bool = False) -> dict:
+          override_input: bool = False, deep_width: int | None = None, coords: bool = False,
+          cut_rule: str = "half") -> dict:
     """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict.
     `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size.
     `init`: a checkpoint to start from (its width, input size and heads are used; the arguments
@@ -294,7 +319,8 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     fully convolutional: the same weights run at any input size, and fine-tuning adapts them to a new one).
     `deep_width`: channels at stride 16 and 32 (default 8 x width); with `init`, a checkpoint with fewer is
     widened first without changing its outputs (`model.widen`), then trained. `coords`: tell each stride-16
-    cell where it is in the picture (`CenterNet.coords`; added to an `init` checkpoint, it starts as a no-op)."""
+    cell where it is in the picture (`CenterNet.coords`; added to an `init` checkpoint, it starts as a no-op).
+    `cut_rule` (one of `CUT_RULES`): which vehicles cut at the picture's edge by the augmentation are ignored."""
     if epochs < 1 or batch_size < 1 or threads < 1:
         raise ValueError(f"epochs, batch_size and threads must be >= 1, got {epochs}, {batch_size}, {threads}")
     if max_occlusion is not None and not 0.0 <= max_occlusion <= 1.0:
@@ -303,6 +329,10 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
         raise ValueError(f"occluders must be within 0..1, got {occluders!r}")
     if not (isinstance(heat_sigma, (int, float)) and 0.0 < heat_sigma <= 0.5):
         raise ValueError(f"heat_sigma must be within 0 < s <= 0.5 (a share of the box's size), got {heat_sigma!r}")
+    if cut_rule not in CUT_RULES:
+        close = difflib.get_close_matches(str(cut_rule), CUT_RULES, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ValueError(f"cut_rule {cut_rule!r} is not one of {', '.join(CUT_RULES)}{hint}")
     class_weights = dict(class_weights or {})
     bad = [f"{k!r} (classes: {', '.join(ModelConfig().classes)})" for k in class_weights if k not in ModelConfig().classes]
     bad += [f"{k}={v!r} (must be a finite number > 0)" for k, v in class_weights.items()
@@ -369,7 +399,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
         for b in range(steps_per_epoch):
             items = [sample_item(ds, int(i), cfg, rng, augment, image=None if images is None else images[int(i)],
                                  crop=crop, max_occlusion=max_occlusion, occluders=occluders,
-                                 heat_sigma=heat_sigma)
+                                 heat_sigma=heat_sigma, cut_rule=cut_rule)
                      for i in order[b * batch_size:(b + 1) * batch_size]]
             batch = [torch.from_numpy(np.stack(col)) for col in zip(*items)]
             loss, parts = loss_fn(net(batch[0]), batch[1:], cw)
@@ -393,7 +423,7 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
             "input_size": list(input_size), "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
             "max_occlusion": max_occlusion, "class_weights": class_weights or None, "occluders": occluders,
             "heat_sigma": heat_sigma, "context": context, "deep_width": deep_width,
-            "coords": coords,
+            "coords": coords, "cut_rule": cut_rule,
             "init": None if base is None else {
                 "command": base.get("training", {}).get("command"),
                 "dataset_sha256": base.get("training", {}).get("dataset_sha256"),
