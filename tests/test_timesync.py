@@ -97,6 +97,11 @@ def test_messages_round_trip_bit_for_bit():
     (b'{"type": "tick", "v": "1.0", "k": 1, "t": 1.0}', "field 'v' must be [major, minor]"),
     (b'{"type": "tick", "v": [2, 0], "k": 1, "t": 1.0}', "protocol version 2.0 is not compatible with 1.1"),
     (b'{"type": "ack", "v": [1, 0], "name": "a/b", "session": "s", "k": 1}', "not a valid key chunk"),
+    (b'{"type": "tick", "v": [1, 0], "k": 1, "t": NaN}', "tick: field 't' must be a finite number, got nan"),
+    (b'{"type": "map", "v": [1, 0], "t_sim0": 0.0, "wall0_ns": 5, "rtf": 0}', "map: field 'rtf' must be a finite "
+                                                                               "number > 0"),
+    (b'{"type": "map", "v": [1, 0], "t_sim0": 0.0, "wall0_ns": 5, "rtf": -0.5}', "got -0.5"),
+    (b'{"type": "map", "v": [1, 0], "t_sim0": 0.0, "wall0_ns": 5, "rtf": Infinity}', "field 'rtf' must be a finite"),
 ])
 def test_bad_payloads_say_what_is_wrong(payload, words):
     with pytest.raises(ProtocolError, match=None) as info:
@@ -448,6 +453,15 @@ def test_offset_estimate_with_a_skewed_clock(buses):
         time.sleep(0.005)
     time.sleep(0.1)
     assert p.sim_time_now() == pytest.approx(10.2, abs=0.03)  # rtf 2: 0.1 wall s = 0.2 sim s
+    # a mapping that would stop the run clock is refused by its receiver, which keeps the one it has
+    good = p.mapping
+    with pytest.raises(ValueError, match="field 'rtf' must be a finite number > 0"):
+        c.publish_mapping(10.0, time.time_ns(), 0.0)  # the master cannot send one
+    c.bus.publish(m.MAPPING, b'{"type": "map", "v": [1, 1], "t_sim0": 10.0, "wall0_ns": 5, "rtf": 0}', 10.0)
+    deadline = time.monotonic() + 2
+    while not any("rtf" in e for e in p.errors) and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert p.mapping is good and any("map: field 'rtf' must be a finite number > 0" in e for e in p.errors), p.errors
     assert p.output_time("detect", 0.5) == pytest.approx(p.sim_time_now(), abs=0.01)  # wall clock charges the work
     c.announce(0, 10.0)
     p.ack(p.next_tick(2))  # a no-op in realtime

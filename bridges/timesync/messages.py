@@ -13,7 +13,9 @@ Every payload is one UTF-8 JSON object::
 ``[major, minor]`` of the sender. A receiver accepts any minor of its own
 major and ignores fields it does not know (so minors can add fields);
 a different major is refused at join time with both versions named. Missing
-or mistyped fields raise :class:`ProtocolError` naming the type and field.
+or mistyped fields raise :class:`ProtocolError` naming the type and field, as do
+non-finite floats (JSON has none; Python's reader takes NaN and Infinity) and
+values a message cannot hold (a Mapping's rtf must be > 0).
 
 Keys (relative to the run prefix; ``<name>`` is the participant)::
 
@@ -33,6 +35,7 @@ Keys (relative to the run prefix; ``<name>`` is the participant)::
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import MISSING, asdict, dataclass, field, fields
 from typing import Any, ClassVar
@@ -142,6 +145,12 @@ class Mapping:
     wall0_ns: int
     rtf: float = 1.0
 
+    def __post_init__(self):
+        # every participant's run clock divides and multiplies by it: 0 or less would stop or reverse time
+        if not (math.isfinite(self.rtf) and self.rtf > 0):
+            raise ValueError(f"field 'rtf' must be a finite number > 0 (simulated seconds per wall second), "
+                             f"got {self.rtf!r}")
+
 
 @dataclass(frozen=True)
 class Ping:
@@ -219,8 +228,13 @@ def decode(payload: bytes, expect: type | None = None):
         want = _JSON_TYPES[f.type if isinstance(f.type, str) else f.type.__name__]
         if not isinstance(value, want) or (isinstance(value, bool) and f.type != "bool"):
             raise ProtocolError(f"{kind}: field {f.name!r} must be {f.type}, got {type(value).__name__} {value!r:.40}")
+        if f.type == "float" and not math.isfinite(value):
+            raise ProtocolError(f"{kind}: field {f.name!r} must be a finite number, got {value!r}")
         values[f.name] = float(value) if f.type == "float" else value
-    msg = cls(**values)
+    try:
+        msg = cls(**values)
+    except ValueError as exc:
+        raise ProtocolError(f"{kind}: {exc}") from None
     for name_field in ("name",):
         if hasattr(msg, name_field) and not NAME.match(getattr(msg, name_field)):
             raise ProtocolError(f"{kind}: participant name {getattr(msg, name_field)!r} is not a valid key chunk "
