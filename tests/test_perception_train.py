@@ -643,3 +643,16 @@ def test_cut_rule_visible_keeps_edge_slivers_the_dataset_labels(data, tmp_path, 
     assert torch.load(w, weights_only=True)["training"]["cut_rule"] == "visible"
     assert train(data, None, epochs=1, **TINY)["training"]["cut_rule"] == "half"
     capsys.readouterr()
+    # bad counts in a dataset are named, not multiplied
+    doc = json.loads((data / "annotations.json").read_text())
+    (tmp_path / "images").symlink_to(data / "images")
+    doc["annotations"][1]["visible_pixels"] = "many"
+    (tmp_path / "annotations.json").write_text(json.dumps(doc))
+    with pytest.raises(DatasetError, match=r"annotations\[1\]: visible_pixels must be a number >= 0 .*'many'"):
+        load_dataset(tmp_path)
+    doc["annotations"][1]["visible_pixels"] = 120
+    doc["info"] = {**doc.get("info", {}), "min_visible_pixels": "forty"}
+    (tmp_path / "annotations.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="needs info.min_visible_pixels .* got 'forty'"):
+        train(tmp_path, None, epochs=1, cut_rule="visible", **TINY)
+    assert train(tmp_path, None, epochs=1, **TINY)["training"]["cut_rule"] == "half"  # the old rule never reads it

@@ -109,11 +109,16 @@ def load_dataset(root: str | Path) -> Dataset:
             raise DatasetError(f"{where}: image_id {image_id} is not in images")
         if w < 0 or h < 0 or not np.isfinite([x, y, w, h]).all():
             raise DatasetError(f"{where}: bbox must be finite with w, h >= 0, got {a['bbox']}")
+        visible = a.get("visible_pixels")
+        if visible is not None and (isinstance(visible, bool) or not isinstance(visible, (int, float))
+                                    or not np.isfinite(visible) or visible < 0):
+            raise DatasetError(f"{where}: visible_pixels must be a number >= 0 (the renderer's pixel count), "
+                               f"got {visible!r}")
         pos, size = a.get("position"), a.get("size")
         by_image[image_id].append(Truth(
             (x, y, x + w, y + h), label, bool(a.get("ignore", False) or a.get("iscrowd", 0)),
             a.get("occlusion"), a.get("distance"), tuple(pos) if pos else None, a.get("heading"),
-            tuple(size) if size else None, a.get("visible_pixels")))
+            tuple(size) if size else None, visible))
     samples = []
     for im in doc["images"]:
         path = root / im["file_name"]

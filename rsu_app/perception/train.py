@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 import torch
 
-from rsu_app.perception.dataset import Dataset, load_dataset
+from rsu_app.perception.dataset import Dataset, Truth, load_dataset
 from rsu_app.perception.model import FORMAT, CenterNet, ModelConfig, widen
 
 
@@ -195,7 +195,7 @@ CUT_RULES = ("half", "visible")
 MIN_VISIBLE_PIXELS = 40  # `v2i dataset`'s threshold, for a dataset whose info does not record it
 
 
-def _cut_away(rule: str, truth, kept_area: float, full_area: float, cut_to_half: bool, info: dict) -> bool:
+def _cut_away(rule: str, truth: Truth, kept_area: float, full_area: float, cut_to_half: bool, info: dict) -> bool:
     """Whether a truth the augmentation cut (kept_area of its full_area left, network-input pixels) is ignored."""
     if rule == "half":
         return cut_to_half
@@ -363,6 +363,11 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     unknown = {t.label for s in ds.samples for t in s.truths} - set(ModelConfig().classes)
     if unknown:
         raise ValueError(f"{data}: labels {sorted(unknown)} are not among the model's classes")
+    threshold = ds.info.get("min_visible_pixels", MIN_VISIBLE_PIXELS) if isinstance(ds.info, dict) else None
+    if cut_rule == "visible" and (isinstance(threshold, bool) or not isinstance(threshold, (int, float))
+                                  or not threshold >= 0):
+        raise ValueError(f"{data}: cut_rule 'visible' needs info.min_visible_pixels in annotations.json to be a "
+                         f"number >= 0 (the dataset's labelling threshold), got {threshold!r}")
     if max_occlusion is not None and all(t.occlusion is None for s in ds.samples for t in s.truths):
         raise ValueError(f"{data}: max_occlusion needs occlusion labels, and this dataset has none "
                          f"(it was rendered with --no-occlusion)")
