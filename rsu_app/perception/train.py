@@ -195,15 +195,27 @@ CUT_RULES = ("half", "visible")
 MIN_VISIBLE_PIXELS = 40  # `v2i dataset`'s threshold, for a dataset whose info does not record it
 
 
-def _cut_away(rule: str, truth: Truth, kept_area: float, full_area: float, cut_to_half: bool, info: dict) -> bool:
-    """Whether a truth the augmentation cut (kept_area of its full_area left, network-input pixels) is ignored."""
+def min_visible_pixels(info) -> float:
+    """The dataset's labelling threshold (`info.min_visible_pixels` of annotations.json, else 40), checked."""
+    value = info.get("min_visible_pixels", MIN_VISIBLE_PIXELS) if isinstance(info, dict) else None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+        raise ValueError(f"cut_rule 'visible' needs info.min_visible_pixels in annotations.json to be a number >= 0 "
+                         f"(the dataset's labelling threshold), got {value!r}")
+    return float(value)
+
+
+def _cut_away(rule: str, truth: Truth, full: tuple, kept: tuple, min_visible: float) -> bool:
+    """Whether a truth the augmentation cut is ignored; `full` and `kept` (x0, x1, y0, y1, network-input
+    pixels): its box before and after the picture's edge cut it."""
+    (a0, a1, b0, b1), (c0, c1, d0, d1) = full, kept
     if rule == "half":
-        return cut_to_half
-    if kept_area >= full_area:
+        return (c1 - c0) < 0.5 * (a1 - a0) or (d1 - d0) < 0.5 * (b1 - b0)
+    kept_share = (c1 - c0) * (d1 - d0) / max((a1 - a0) * (b1 - b0), 1e-9)
+    if kept_share >= 1.0:
         return False
     u0, v0, u1, v1 = truth.box
     visible = truth.visible_pixels if truth.visible_pixels is not None else (u1 - u0) * (v1 - v0)
-    return visible * kept_area / max(full_area, 1e-9) < float(info.get("min_visible_pixels", MIN_VISIBLE_PIXELS))
+    return visible * kept_share < min_visible
 
 
 def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generator, augment: bool,
@@ -222,6 +234,7 @@ def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generato
         out, M = _crop(rng, out, M, crop)
     W, H = out.shape[1], out.shape[0]
     cls = {c: i for i, c in enumerate(cfg.classes)}
+    min_visible = min_visible_pixels(ds.info) if cut_rule == "visible" else 0.0
     boxes, labels, ignore = [], [], []
     for t in s.truths:
         u0, v0, u1, v1 = t.box
@@ -231,8 +244,7 @@ def sample_item(ds: Dataset, idx: int, cfg: ModelConfig, rng: np.random.Generato
         c0, c1, d0, d1 = max(a0, 0), min(a1, W), max(b0, 0), min(b1, H)
         if c1 - c0 < 1 or d1 - d0 < 1:
             continue
-        cut = _cut_away(cut_rule, t, (c1 - c0) * (d1 - d0), (a1 - a0) * (b1 - b0),
-                        (c1 - c0) < 0.5 * (a1 - a0) or (d1 - d0) < 0.5 * (b1 - b0), ds.info)
+        cut = _cut_away(cut_rule, t, (a0, a1, b0, b1), (c0, c1, d0, d1), min_visible)
         boxes.append((c0, d0, c1, d1))
         labels.append(cls[t.label])
         hidden = max_occlusion is not None and t.occlusion is not None and t.occlusion > max_occlusion
@@ -363,11 +375,11 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
     unknown = {t.label for s in ds.samples for t in s.truths} - set(ModelConfig().classes)
     if unknown:
         raise ValueError(f"{data}: labels {sorted(unknown)} are not among the model's classes")
-    threshold = ds.info.get("min_visible_pixels", MIN_VISIBLE_PIXELS) if isinstance(ds.info, dict) else None
-    if cut_rule == "visible" and (isinstance(threshold, bool) or not isinstance(threshold, (int, float))
-                                  or not threshold >= 0):
-        raise ValueError(f"{data}: cut_rule 'visible' needs info.min_visible_pixels in annotations.json to be a "
-                         f"number >= 0 (the dataset's labelling threshold), got {threshold!r}")
+    if cut_rule == "visible":
+        try:
+            min_visible_pixels(ds.info)  # refused before training, not inside a batch
+        except ValueError as exc:
+            raise ValueError(f"{data}: {exc}") from None
     if max_occlusion is not None and all(t.occlusion is None for s in ds.samples for t in s.truths):
         raise ValueError(f"{data}: max_occlusion needs occlusion labels, and this dataset has none "
                          f"(it was rendered with --no-occlusion)")
