@@ -643,6 +643,15 @@ def test_cut_rule_visible_keeps_edge_slivers_the_dataset_labels(data, tmp_path, 
     assert torch.load(w, weights_only=True)["training"]["cut_rule"] == "visible"
     assert train(data, None, epochs=1, **TINY)["training"]["cut_rule"] == "half"
     capsys.readouterr()
+    # the CLI lists the rules without importing torch: its choices must stay train's
+    import argparse
+
+    from rsu_app.perception.cli import add_parser
+    from rsu_app.perception.train import CUT_RULES
+    sub = argparse.ArgumentParser().add_subparsers()
+    add_parser(sub)
+    action, = (a for a in sub.choices["train-detector"]._actions if "--cut-rule" in a.option_strings)
+    assert tuple(action.choices) == CUT_RULES and action.default == "half"
     # bad counts in a dataset are named, not multiplied
     doc = json.loads((data / "annotations.json").read_text())
     (tmp_path / "images").symlink_to(data / "images")
