@@ -21,11 +21,11 @@ from fmpy import extract
 
 from bridges.can.bus import open_bus
 from bridges.can.codec import CavCodec, CavCommand, Mode, RollingCounter
-from master.can_bridge import CanBridge, parse_can
+from master.links.can_bridge import CanBridge, parse_can
 from master.errors import ScenarioError
-from master.fmu_runtime import FmuInstance
+from master.fmi.runtime import FmuInstance
 from master.hooks import Member, RunContext
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 H = 0.01
@@ -63,7 +63,7 @@ def channel() -> str:
 
 
 class Vehicle:
-    """A built VehicleDynamics FMU stepped the way master/cosim.py steps it, with the bridge's hooks."""
+    """A built VehicleDynamics FMU stepped the way master/run/cosim.py steps it, with the bridge's hooks."""
 
     def __init__(self, fmu_path: Path, tmp: Path, **start):
         from fmpy import read_model_description
@@ -435,8 +435,8 @@ def test_udp_multicast_between_two_processes(scenario, vehicle_fmu, tmp_path):
 
 def test_v2i_run_with_a_can_table_is_reproducible_whatever_the_app_speed(write_scenario, tmp_path):
     """Through the master: [can] in a scenario file, an AV app answering every status frame."""
-    from master.cosim import CoSimulation
-    from master.scenario import load_scenario
+    from master.run.cosim import CoSimulation
+    from master.scenario.loader import load_scenario
 
     ch = channel()
     path = write_scenario(f"""
