@@ -128,13 +128,14 @@ class CanConfig:
 def read_section(value: Any, context) -> CanConfig | None:
     """The `[can]` section's reader (master.scenario.sections)."""
     return parse_can(value, context.instances, connections=context.connections, step=context.step,
-                     base_dir=context.base_dir, path=context.path, problem=context.problem)
+                     base_dir=context.base_dir, path=context.path, problem=context.problem,
+                     mode=context.time.mode)
 
 
 def parse_can(table: Any, instances: dict, *, connections=(), step: float | None = None,
               base_dir: Path | None = None, path: str | Path = "scenario",
-              problem: Callable[[str, str], None] | None = None) -> CanConfig | None:
-    """Validate the `[can]` table.
+              problem: Callable[[str, str], None] | None = None, mode: str = "lockstep") -> CanConfig | None:
+    """Validate the `[can]` table (`mode`: the run's time mode, `[time] mode`).
 
     Every fault is named by its key (``can.status_rate_hz: ...``). With `problem`
     (the scenario loader's collector) faults go there and None is returned;
@@ -148,13 +149,13 @@ def parse_can(table: Any, instances: dict, *, connections=(), step: float | None
         else:
             problems.append(f"{key}: {reason}")
 
-    config = _parse(Table(table, "can", bad), instances, connections, step, base_dir)
+    config = _parse(Table(table, "can", bad), instances, connections, step, base_dir, mode)
     if problems:
         raise ScenarioError(path, problems)
     return config
 
 
-def _parse(t: Table, instances, connections, step, base_dir) -> CanConfig | None:
+def _parse(t: Table, instances, connections, step, base_dir, mode="lockstep") -> CanConfig | None:
     if not t.ok:  # not a table
         return None
     t.unknown_keys(CAN_KEYS)
@@ -181,6 +182,16 @@ def _parse(t: Table, instances, connections, step, base_dir) -> CanConfig | None
         n = round(1.0 / (rate * step))
         if n < 1 or abs(n * step * rate - 1.0) > 1e-6:
             t.problem("status_rate_hz", f"the status period 1/{rate:g} s must be a whole number of steps of {step:g} s")
+    if (sync == "echo" and mode == "lockstep" and "sync" not in t.failed and "status_rate_hz" not in t.failed
+            and step is not None and rate > 0 and inst is not None
+            and round(1.0 / (rate * step * inst.step_multiple)) <= 1):
+        # echo waits at t_s + h for the answer to the status of t_s; a status every step sends the next one
+        # (of t_s + h) first, which replaces the awaited one: the master would never wait (CanBridge.status_every)
+        t.problem("status_rate_hz", f"{rate:g} Hz is a status every step of {inst.name} "
+                                    f"({step * inst.step_multiple:g} s): with sync = \"echo\" the next status "
+                                    "replaces the one whose answer is awaited, so the master never waits and the "
+                                    "run is not reproducible; use at most half that rate, or sync = \"drain\" "
+                                    "(with the time protocol) or \"free\"")
     if sync == "echo" and "sync" not in t.failed and timeout <= 1.0 / rate + (step or 0.0) - _EPS:
         t.problem("command_timeout_s", f"{timeout:g} s would time out between two answers: with sync = \"echo\" "
                                        f"a new command comes every status period ({1.0 / rate:g} s), so it must be "
