@@ -15,6 +15,7 @@ Scenario file::
     iface = "127.0.0.1"             # udp_multicast only: the interface's address (default: this host only)
     # bitrate = 500000              # real buses
     status_rate_hz = 50.0           # AV_Status rate; its period must be a multiple of the step
+                                    # (with sync = "echo" in lockstep: at least two of the vehicle's steps)
     command_timeout_s = 0.1         # simulated s without a new command before the fallback
     on_timeout = "brake"            # "brake" (timeout_accel), "zero_accel", "hold" or "manual"
     timeout_accel = -4.0            # m/s^2 of the "brake" fallback
