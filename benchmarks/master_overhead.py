@@ -210,7 +210,7 @@ def _category(func: tuple) -> str | None:
     if filename.endswith("master/run/recorder.py"):
         return "master recorder (row text, flush, timing.csv, parquet)"
     if "/master/" in filename:
-        return "master loop + fmu_runtime wrappers"
+        return "master loop + fmi.runtime wrappers"
     return None  # stdlib, numpy, pyarrow: attributed to whoever called them
 
 
