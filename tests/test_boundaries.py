@@ -341,6 +341,16 @@ def test_the_tree_keeps_the_rules():
     assert not violations, "\n" + "\n".join(violations)
 
 
+def test_each_room_of_the_master_says_what_it_owns():
+    """Every subpackage of master/ is a room of ROOMS whose __init__.py opens with a docstring (what it owns)."""
+    found = {f"master.{d.name}" for d in (ROOT / "master").iterdir() if (d / "__init__.py").is_file()}
+    assert found == ROOMS, f"rooms on disk {sorted(found)} != ROOMS {sorted(ROOMS)}"
+    for room in sorted(ROOMS):
+        init = ROOT.joinpath(*room.split("."), "__init__.py")
+        doc = ast.get_docstring(ast.parse(init.read_text(encoding="utf-8"))) or ""
+        assert len(doc.split()) >= 20, f"{init.relative_to(ROOT)}: say in a docstring what this room owns"
+
+
 def test_the_scan_sees_known_arrows():
     """The scanner finds imports the tree is known to have (module level, inside a function, relative)."""
     seen = set()
