@@ -30,7 +30,7 @@ from bridges.security import (PSID_SURROGATE_BSM, Credentials, ScenarioCA, Secur
 from bridges.security import oer
 from bridges.security.oer import PROTOCOL_VERSION
 
-CA_NAME = "v2i-scenario-ca"  # the scenario CA's name (master/pki_section.py): the rogue CA copies it
+CA_NAME = "v2i-scenario-ca"  # the scenario CA's name (master/scenario/pki.py): the rogue CA copies it
 IMPERSONATED = "rsu"  # the station name the untrusted and the stolen certificates carry
 EXPIRED_AGO_DAYS = 30  # the stolen certificate's validity ended this long before it is made
 EXPIRED_HOURS = 24 * 7  # ... after a week of validity

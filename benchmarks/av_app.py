@@ -189,7 +189,7 @@ def dense_clustering(layout, scans: int) -> dict:
 
 
 def lidar(scans: int) -> dict:
-    from master.scenario import load_scenario
+    from master.scenario.loader import load_scenario
     from master.world.world import World
 
     from av_app.config import PerceptionSection

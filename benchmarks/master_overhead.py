@@ -3,7 +3,7 @@
     python benchmarks/master_overhead.py [--steps 10000] [--repeats 3]
         [--realtime-seconds 30] [--json PATH] [--quick] [--profile]
 
-1. The master (`master.cosim.CoSimulation`) steps N = 1, 10, 50 unconnected
+1. The master (`master.run.cosim.CoSimulation`) steps N = 1, 10, 50 unconnected
    instances of each FMU family, lockstep, h = 0.01 s, recording every output
    (the default `[record]`). Figure: microseconds per FMU step =
    loop wall time / (steps * N). The loop time is the run's
@@ -100,7 +100,7 @@ def scenario_toml(fmu: Path, n: int, steps: int, mode: str = "lockstep", rtf: fl
 
 
 def load(fmu: Path, n: int, steps: int, work: Path, mode: str = "lockstep"):
-    from master.scenario import load_scenario
+    from master.scenario.loader import load_scenario
 
     path = work / f"bench_{mode}_{n}.toml"
     path.write_text(scenario_toml(fmu, n, steps, mode))
@@ -109,7 +109,7 @@ def load(fmu: Path, n: int, steps: int, work: Path, mode: str = "lockstep"):
 
 def run_master(fmu: Path, n: int, steps: int, work: Path, tag: str, mode: str = "lockstep") -> dict:
     """One master run; returns loop and whole-run times (s) and the run metadata."""
-    from master.cosim import CoSimulation
+    from master.run.cosim import CoSimulation
 
     scenario = load(fmu, n, steps, work, mode)
     run_dir = work / f"run-{mode}-{n}-{tag}"
@@ -207,10 +207,10 @@ def _category(func: tuple) -> str | None:
         return "FMU model code (pythonfmu slave, in-process)"
     if "/fmpy/" in filename:
         return "fmpy FMU2Slave wrappers (ctypes calls; a compiled FMU's own code runs in them)"
-    if filename.endswith("master/recorder.py"):
+    if filename.endswith("master/run/recorder.py"):
         return "master recorder (row text, flush, timing.csv, parquet)"
     if "/master/" in filename:
-        return "master loop + fmu_runtime wrappers"
+        return "master loop + fmi.runtime wrappers"
     return None  # stdlib, numpy, pyarrow: attributed to whoever called them
 
 

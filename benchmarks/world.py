@@ -61,7 +61,7 @@ POSES_48 = {"cav": (1.75, -50.0 + 8.333 * 4.8, math.pi / 2, 8.333), "ev": (-100.
 
 
 def case_study_layout() -> WorldLayout:
-    from master.scenario import load_scenario
+    from master.scenario.loader import load_scenario
 
     return load_scenario(SCENARIO).world
 
@@ -117,7 +117,7 @@ class _Var:
 
 
 class _FakeFmu:
-    """Stands in for master.fmu_runtime.FmuInstance: getters return this step's outputs."""
+    """Stands in for master.fmi.runtime.FmuInstance: getters return this step's outputs."""
 
     def __init__(self):
         self.values = [0.0, 0.0, 0.0, 0.0]
@@ -186,8 +186,8 @@ def bench_loop_rtf(camera: bool, lidar: bool, sim_seconds: float) -> float:
     """Real-time factor of a lockstep run of the case-study world with the given sensors."""
     import tempfile
 
-    from master.cosim import CoSimulation
-    from master.scenario import load_scenario
+    from master.run.cosim import CoSimulation
+    from master.scenario.loader import load_scenario
 
     sc = load_scenario(SCENARIO)
     sc.time.stop = sc.time.start + sim_seconds

@@ -91,7 +91,7 @@ def _cmd_eval_tracker(args) -> int:
     except ValueError as exc:
         print("\n".join(f"error: {line}" for line in str(exc).splitlines()), file=sys.stderr)
         return 2
-    from master.scenario import ScenarioError
+    from master.scenario.loader import ScenarioError
     from rsu_app.perception.detector import DetectorError, make_detector
 
     try:

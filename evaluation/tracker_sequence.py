@@ -57,7 +57,7 @@ from typing import Callable
 
 import numpy as np
 
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 from master.world.dataset import MIN_VISIBLE_PIXELS  # fewer visible pixels is not a vehicle anyone could see
 from master.world.world import World
 from rsu_app.config import Settings

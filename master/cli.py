@@ -46,7 +46,7 @@ def _cmd_build_fmus(args) -> int:
 
 
 def _cmd_validate(args) -> int:
-    from master.scenario import load_scenario_or_report
+    from master.scenario.loader import load_scenario_or_report
 
     worst = 0
     for path in args.files:
@@ -60,9 +60,9 @@ def _cmd_validate(args) -> int:
 
 
 def _cmd_run(args) -> int:
-    from master.cosim import CoSimulation
-    from master.scenario import load_scenario_or_report
-    from master.summary import format_summary
+    from master.run.cosim import CoSimulation
+    from master.scenario.loader import load_scenario_or_report
+    from master.run.summary import format_summary
 
     sc = load_scenario_or_report(args.file, args.set)
     if sc is None:
@@ -90,7 +90,7 @@ def _cmd_run(args) -> int:
 def _write_run_report(run_dir: Path) -> None:
     """The run page beside the data; a run that finished is never failed by its report."""
     try:
-        from master.report import write_report
+        from master.report.page import write_report
 
         page, _ = write_report([run_dir])
     except Exception as exc:  # noqa: BLE001 -- matplotlib/PyAV trouble leaves the recorded run as it is
@@ -101,10 +101,11 @@ def _write_run_report(run_dir: Path) -> None:
 
 
 def _cmd_info(args) -> int:
-    from master.fmu_info import describe
+    from master.fmi.info import describe
+    from master.scenario.loader import resolve_fmu
 
     try:
-        print(describe(args.fmu))
+        print(describe(resolve_fmu(args.fmu, Path.cwd())))
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -151,7 +152,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def add_set_argument(p: argparse.ArgumentParser) -> None:
-    """`--set KEY=VALUE` (repeatable): a scenario value overridden (master.overrides has the rules)."""
+    """`--set KEY=VALUE` (repeatable): a scenario value overridden (master.scenario.overrides has the rules)."""
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a value of the scenario, e.g. --set fmus.ev.parameters.v0=20.1 "
                         "--set v2x.channel.technology=cv2x --set 'world.cameras[rsu_cam].z=10.0' (repeatable). "

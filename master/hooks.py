@@ -1,6 +1,6 @@
 """One protocol for everything that acts around a step of the master's loop.
 
-The stepping loop (master.cosim) knows nothing of serial ports, CAN buses,
+The stepping loop (master.run.cosim) knows nothing of serial ports, CAN buses,
 apps, the world or the radio: each is a *hook* with the same four methods, and
 the loop calls them in a fixed order around the FMUs' step (the order defines
 the results; docs/architecture.md, "The stepping loop"):
@@ -27,7 +27,7 @@ from typing import Any, Callable, Iterable
 class Member:
     """An FMU instance in the loop with its step multiple and pre-bound transfers."""
 
-    fmu: Any  # master.fmu_runtime.FmuInstance
+    fmu: Any  # master.fmi.runtime.FmuInstance
     multiple: int
     inputs: list[tuple[Callable, list[int]]] = field(default_factory=list)  # (setter, source slots)
     outputs: list[tuple[Callable, int, int]] = field(default_factory=list)  # (getter, first slot, end slot)
@@ -61,7 +61,7 @@ class RunContext:
         self.serial_urls: dict[str, str] = {}  # [serial.NAME] -> its pyserial URL, once the ports are open
         self.stop_reason: str | None = None
         self.clock = None  # realtime with participants: () -> the run clock's time now, or None before it runs
-        self.pacer = None  # realtime: master.pacing.Pacer, the steps' wall-clock schedule
+        self.pacer = None  # realtime: master.run.pacing.Pacer, the steps' wall-clock schedule
         self._events = None
 
     @property

@@ -62,7 +62,7 @@ from rsu_app.perception.tracker import (GroundDetection, Tracker, TrackerConfig,
 
 log = logging.getLogger(__name__)
 HEADING_RADIUS = 3.0  # m: a track this close to a detection's rough ground point lends it its heading
-DETECTIONS = "detections"  # the kind of a frame's trace record (master/report.py draws these on the clip)
+DETECTIONS = "detections"  # the kind of a frame's trace record (master/report/page.py draws these on the clip)
 
 
 @dataclass

@@ -323,7 +323,7 @@ def test_the_cli_lists_the_attacks_and_exits_2_naming_a_bad_key():
 
 # -- metrics.json: v2x_rejected --------------------------------------------------------------------------------------
 def test_metrics_count_the_refused_frames_by_reason_per_receiver(tmp_path):
-    from master.metrics import rejected_by_receiver
+    from master.run.metrics import rejected_by_receiver
 
     cav = {"name": "cav", "station": "cav", "obu": {"received": 9, "accepted": {"bsm": 2},
                                                     "rejected": {"untrusted-signer": 4, "malformed": 3}}}

@@ -5,7 +5,7 @@ Each run: `v2i run` machinery in this process (CoSimulation), the AV app
 (tests/helpers/bsm_feeder.py, its own V2X station at the RSU's pole) started by
 the master as participants on zenoh, the V2X air through the channel model,
 the cav driven over CAN by the gateway (`sync = "echo"`). Footprint overlap is
-judged independently by master.collision (shapely) from timeseries.csv and the
+judged independently by master.run.collision (shapely) from timeseries.csv and the
 world's vehicle sizes.
 
 The emergency vehicle starts at AV_EV_X0: with it, the cav driving its own
@@ -32,9 +32,9 @@ import tomli_w
 from bridges.security import PSID_SURROGATE_BSM, ScenarioCA
 from bridges.v2x import (AIR_ARRIVAL, CAN_COMMAND, DECODE, ENCODE, FUSE, PLAN, RECEIVE, SEND, SIGN, STAMPS, VERIFY,
                          stamp_s)
-from master.collision import Body, CollisionCheck
-from master.cosim import CoSimulation
-from master.scenario import load_scenario
+from master.run.collision import Body, CollisionCheck
+from master.run.cosim import CoSimulation
+from master.scenario.loader import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 BASE = ROOT / "tests" / "scenarios" / "av_case_study.toml"

@@ -139,7 +139,7 @@ def test_a_new_track_is_reported_only_once_confirmed():
 @pytest.fixture(scope="module")
 def world(fmu_dir):
     pytest.importorskip("pybullet")
-    from master.scenario import load_scenario
+    from master.scenario.loader import load_scenario
     from master.world.world import World
 
     text = (ROOT / "tests" / "scenarios" / "av_case_study.toml").read_text()

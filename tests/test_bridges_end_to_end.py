@@ -20,8 +20,8 @@ from bridges.sensor_stream import decode_fix
 from bridges.timesync.participant import Participant
 from bridges.transport.memory import MemoryBus
 from bridges.v2x import AIR_ARRIVAL, stamp_ns
-from master.cosim import CoSimulation
-from master.scenario import load_scenario
+from master.run.cosim import CoSimulation
+from master.scenario.loader import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 CASE = (ROOT / "scenarios" / "ima_world.toml").read_text()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from bridges.camera_stream import CameraStreamError, decode_frame, encode_frame
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 from master.world.world import World
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -21,11 +21,11 @@ from fmpy import extract
 
 from bridges.can.bus import open_bus
 from bridges.can.codec import CavCodec, CavCommand, Mode, RollingCounter
-from master.can_bridge import CanBridge, parse_can
+from master.links.can_bridge import CanBridge, parse_can
 from master.errors import ScenarioError
-from master.fmu_runtime import FmuInstance
+from master.fmi.runtime import FmuInstance
 from master.hooks import Member, RunContext
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 H = 0.01
@@ -63,7 +63,7 @@ def channel() -> str:
 
 
 class Vehicle:
-    """A built VehicleDynamics FMU stepped the way master/cosim.py steps it, with the bridge's hooks."""
+    """A built VehicleDynamics FMU stepped the way master/run/cosim.py steps it, with the bridge's hooks."""
 
     def __init__(self, fmu_path: Path, tmp: Path, **start):
         from fmpy import read_model_description
@@ -373,6 +373,33 @@ def test_parse_names_the_offending_key(scenario, table, key):
     assert key in collected
 
 
+def test_echo_with_a_status_every_step_is_refused_naming_the_key(scenario, write_scenario):
+    """sync = "echo" waits, before stepping from t_s + h, for the answer to the status of t_s; with a status
+    every step the next status (of t_s + h) is sent first and becomes the awaited one, so the master never
+    waits and the app's wall-clock speed decides when commands apply: not reproducible, refused."""
+    every_step = {"vehicle": "cav", "status_rate_hz": 1.0 / H, "command_timeout_s": 0.5}
+    with pytest.raises(ScenarioError) as info:
+        parse(every_step, scenario)
+    problems = [p for p in info.value.problems if p.startswith("can.status_rate_hz:")]
+    assert len(problems) == 1 and "every step" in problems[0] and '"echo"' in problems[0], info.value.problems
+    # the vehicle's own step counts: a status every second master step is every step of a vehicle stepping 2 h
+    slow = load_scenario(write_scenario(SCENARIO.replace('[fmus.other]', 'step_multiple = 2\n[fmus.other]')))
+    with pytest.raises(ScenarioError, match="can.status_rate_hz"):
+        parse(dict(every_step, status_rate_hz=0.5 / H), slow)
+    # what stays allowed: every second step, the other syncs, and realtime (echo becomes free there)
+    assert parse(dict(every_step, status_rate_hz=0.5 / H), scenario).sync == "echo"
+    assert parse(dict(every_step, sync="free"), scenario).status_rate_hz == 1.0 / H
+    assert parse(dict(every_step, sync="drain"), scenario).status_rate_hz == 1.0 / H
+    assert parse_can(every_step, scenario.instances, connections=scenario.connections, step=H,
+                     mode="realtime").sync == "echo"
+    # and the whole file is refused when checked (v2i validate / run), naming the key
+    text = SCENARIO + '[can]\nvehicle = "cav"\nstatus_rate_hz = 100.0\ncommand_timeout_s = 0.5\n'
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(write_scenario(text))
+    assert any(p.startswith("can.status_rate_hz:") and "every step" in p for p in info.value.problems), \
+        info.value.problems
+
+
 # -- two processes over udp_multicast -------------------------------------------------------------------
 def multicast_port() -> int | None:
     """A free UDP port on which IPv4 multicast loops back to this host, or None."""
@@ -435,8 +462,8 @@ def test_udp_multicast_between_two_processes(scenario, vehicle_fmu, tmp_path):
 
 def test_v2i_run_with_a_can_table_is_reproducible_whatever_the_app_speed(write_scenario, tmp_path):
     """Through the master: [can] in a scenario file, an AV app answering every status frame."""
-    from master.cosim import CoSimulation
-    from master.scenario import load_scenario
+    from master.run.cosim import CoSimulation
+    from master.scenario.loader import load_scenario
 
     ch = channel()
     path = write_scenario(f"""

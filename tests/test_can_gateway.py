@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from bridges.can.codec import AppState, CavCommand, Mode
-from master.can_gateway import Actuation, Gateway, StatusFrame
+from master.links.can_gateway import Actuation, Gateway, StatusFrame
 
 H = 0.01
 BASELINE = (0.5, 0.05, False)  # the vehicle's own inputs before the first command

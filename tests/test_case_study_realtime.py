@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from bridges.v2x import STAGES, stage_ms
-from master.metrics import applied_times, read_csv, with_can_applied
+from master.run.metrics import applied_times, read_csv, with_can_applied
 from test_hil_netns import MASTER_IP, netns_pair  # noqa: F401  (the two-namespace fixture)
 from test_rsu_app_support import free_port, make_pki
 

@@ -148,7 +148,7 @@ def test_help_imports_nothing_heavy(tmp_path):
         return set(out.read_text().split())
 
     at_help = loaded([str(V2I), "--help"])
-    assert {"master.snapshot", "rsu_app.perception.cli", "evaluation.cli"} <= at_help  # entry points loaded
+    assert {"master.report.snapshot", "rsu_app.perception.cli", "evaluation.cli"} <= at_help  # entry points loaded
     heavy = {m for m in at_help if m.partition(".")[0] in HEAVY}
     assert not heavy, sorted(heavy)
     assert "torch" in loaded([sys.executable, "-c", "import torch"])

@@ -1,4 +1,4 @@
-"""master.collision: footprints, first contact, min gap, TTC and PET against hand-computed geometry."""
+"""master.run.collision: footprints, first contact, min gap, TTC and PET against hand-computed geometry."""
 from __future__ import annotations
 
 import math
@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from master.collision import Body, CollisionCheck
+from master.run.collision import Body, CollisionCheck
 
 CAR = Body("car", 4.5, 1.8, 0.95)
 

@@ -1,11 +1,11 @@
-"""master.conditions: the scenario's condition language compiles what it should and refuses the rest."""
+"""master.scenario.conditions: the scenario's condition language compiles what it should and refuses the rest."""
 from __future__ import annotations
 
 import math
 
 import pytest
 
-from master.conditions import ConditionError, compile_condition
+from master.scenario.conditions import ConditionError, compile_condition
 
 SIGNALS = ["cav.x", "cav.y", "cav.v", "ev.x", "ev.y", "ev.v", "tlc.state_2"]
 VALUES = {"cav.x": 1.75, "cav.y": -10.0, "cav.v": 0.05, "ev.x": -20.0, "ev.y": -1.75, "ev.v": 16.7,

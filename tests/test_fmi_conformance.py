@@ -27,9 +27,9 @@ import numpy as np
 import pytest
 
 from master.cli import main as cli_main
-from master.cosim import CoSimulation
+from master.run.cosim import CoSimulation
 from master.errors import ScenarioError
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 from test_third_party_fmu import c_fmu_builder
 
 H = 0.1
@@ -305,8 +305,8 @@ gain = 2.0
 def test_feedthrough_loop_reads_dependencies_and_assumes_all_inputs_when_absent():
     from types import SimpleNamespace as NS
 
-    from master.initialization import feedthrough_loop
-    from master.scenario import Connection
+    from master.run.initialization import feedthrough_loop
+    from master.scenario.loader import Connection
 
     def instance(outputs):
         inputs = [NS(name="u", causality="input"), NS(name="w", causality="input")]
@@ -485,7 +485,7 @@ input = "c_in.csv"
 
 
 def test_input_table_holds_at_a_row_reached_a_rounding_error_early():
-    from master.input_file import InputColumn, InputTable
+    from master.scenario.input_file import InputColumn, InputTable
 
     table = InputTable(Path("t.csv"), [0.0, 0.3, 1.0], [InputColumn("n", [1, 2, 3], interpolate=False),
                                                       InputColumn("x", [0.0, 3.0, 3.0], interpolate=True)])
@@ -548,7 +548,7 @@ def test_info_shows_array_sizes(fmus, capsys):
 
 
 def test_array_helpers_name_elements_row_major_and_flatten_nested_lists():
-    from master.fmu_variables import element_names, flatten
+    from master.fmi.variables import element_names, flatten
 
     assert element_names("m", ()) == ["m"]
     assert element_names("m", (2, 3)) == ["m[1,1]", "m[1,2]", "m[1,3]", "m[2,1]", "m[2,2]", "m[2,3]"]

@@ -12,7 +12,7 @@ from bridges.timesync.coordinator import Coordinator, Expected
 from bridges.timesync.participant import Participant
 from bridges.transport.memory import MemoryBus
 from master.errors import ScenarioError
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 
 _ids = itertools.count()
 BASE = """

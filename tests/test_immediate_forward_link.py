@@ -1,4 +1,4 @@
-"""The master's real-radio link ([v2x] mode = "rsu", master.rsu_link): the scenario keys, the link's timing
+"""The master's real-radio link ([v2x] mode = "rsu", master.links.rsu_link): the scenario keys, the link's timing
 on a fake clock (lockstep holds a frame and delivers it at t_tx + the measured delay; realtime at the
 current step), matching, losses, late/duplicate/foreign forwards and refusals by reason, and the air's hook
 driving the emulated box process over loopback.
@@ -19,8 +19,8 @@ from bridges import immediate_forward as imf
 from bridges.security import PSID_BSM, PSID_SPAT_MAP, PSID_SURROGATE_BSM, ScenarioCA, Signer, oer, time64_us
 from bridges.udp_endpoint import Endpoint
 from bridges.v2x import AIR_ARRIVAL, SEND, stamp_ns, stamp_s
-from master.radio_bridge import RadioBridge, parse_v2x
-from master.rsu_link import RsuLink
+from master.links.radio_bridge import RadioBridge, parse_v2x
+from master.links.rsu_link import RsuLink
 from test_immediate_forward import BSM, MAP, OTHER_BSM, SPAT
 
 STATIONS = {"rsu": {"position": [6.5, 6.5, 6.0]}, "cav": {"position": [30.0, 0.0, 0.0]}}

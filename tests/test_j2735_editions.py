@@ -461,8 +461,8 @@ def test_cli_header(capsys):
 def test_the_scenario_names_the_edition_and_started_apps_get_it(tmp_path):
     """[v2x] j2735_edition is checked with the scenario and handed to started apps as V2I_J2735_EDITION
     (which their default_codec() reads); a participant's own env still wins."""
-    from master.participants import ParticipantBridge, parse_participants
-    from master.radio_bridge import parse_v2x
+    from master.links.participants import ParticipantBridge, parse_participants
+    from master.links.radio_bridge import parse_v2x
 
     problems: list[tuple[str, str]] = []
     stations = {"rsu": {"position": [0.0, 0.0, 5.0]}}

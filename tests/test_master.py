@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 
 from master.cli import main
-from master.cosim import CoSimulation
+from master.run.cosim import CoSimulation
 from master.errors import DeadlineMissError
-from master.pacing import Pacer
-from master.scenario import load_scenario
+from master.run.pacing import Pacer
+from master.scenario.loader import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -128,7 +128,7 @@ def test_the_lifeline_is_armed_only_for_a_child_of_the_named_master():
 
 def test_rows_reach_the_disk_within_the_flush_interval(tmp_path):
     """What a kill can lose, on a fake clock: rows written less than FLUSH_S ago, never older ones."""
-    from master.recorder import FLUSH_S, TIMESERIES, RunRecorder
+    from master.run.recorder import FLUSH_S, TIMESERIES, RunRecorder
 
     now = [100.0]
     rec = RunRecorder(tmp_path, ["a"], clock=lambda: now[0])

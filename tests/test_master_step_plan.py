@@ -1,5 +1,5 @@
-"""The master's stepping loop as a plan (master.algorithm.step_plan) and the recorder's block formatting
-(master.recorder): per-FMU costs left the loop (issue 19); the results, the calls and the errors must not change.
+"""The master's stepping loop as a plan (master.run.algorithm.step_plan) and the recorder's block formatting
+(master.run.recorder): per-FMU costs left the loop (issue 19); the results, the calls and the errors must not change.
 
 Pure core first: FmuInstance over a fake fmpy slave (no FMU binary), the plan compared call by call with
 the step-by-step algorithm it replaced (written out below as the reference), and its errors with the ones
@@ -19,11 +19,11 @@ from types import SimpleNamespace
 
 import pytest
 
-from master.algorithm import step_plan
+from master.run.algorithm import step_plan
 from master.errors import SimulationError
-from master.fmu_runtime import FmuInstance
+from master.fmi.runtime import FmuInstance
 from master.hooks import Member
-from master.recorder import FLUSH_S, TIMESERIES, RunRecorder
+from master.run.recorder import FLUSH_S, TIMESERIES, RunRecorder
 
 H = 0.1
 
@@ -83,7 +83,7 @@ VARIABLES = [SimpleNamespace(name="y", type="Real", valueReference=0, causality=
 
 def bound(names: list[str], calls: list, multiples: dict[str, int] | None = None,
           connections: tuple[tuple[str, str], ...] = ()) -> tuple[list[Member], list]:
-    """Members over fake slaves, bound as master.cosim binds them: y and n of each in one flat table
+    """Members over fake slaves, bound as master.run.cosim binds them: y and n of each in one flat table
     (two getter groups per instance), and each (src, dst) connection src.y -> dst.u."""
     members, slot = [], 0
     for name in names:
@@ -335,8 +335,8 @@ def integrator_fmu(out_dir: Path) -> Path:
 
 
 def test_an_instance_in_the_middle_ends_the_run_and_the_last_one_still_steps(tmp_path):
-    from master.cosim import CoSimulation
-    from master.scenario import load_scenario
+    from master.run.cosim import CoSimulation
+    from master.scenario.loader import load_scenario
 
     fmu = integrator_fmu(tmp_path / "fmus")
     shutil.copy(fmu, tmp_path / fmu.name)

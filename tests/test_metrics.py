@@ -1,4 +1,4 @@
-"""master.metrics: latency stages from trace records joined with the CAN gateway's log, PDR, IPG, AoI."""
+"""master.run.metrics: latency stages from trace records joined with the CAN gateway's log, PDR, IPG, AoI."""
 from __future__ import annotations
 
 import json
@@ -6,7 +6,7 @@ import json
 import pytest
 
 from bridges import v2x
-from master.metrics import (Applications, aoi_metrics, applied_times, clock_bounds, latency_metrics, link_metrics,
+from master.run.metrics import (Applications, aoi_metrics, applied_times, clock_bounds, latency_metrics, link_metrics,
                             read_jsonl, subject_deliveries, with_can_applied)
 
 

@@ -11,9 +11,9 @@ import pytest
 
 from bridges.timesync.participant import Participant
 from master.cli import main
-from master.cosim import CoSimulation
+from master.run.cosim import CoSimulation
 from master.errors import ScenarioError
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 
 BASE = """
 [scenario]
@@ -267,7 +267,7 @@ def test_a_bus_that_cannot_open_fails_the_run_with_the_reason(write_scenario, tm
 
 
 def test_started_apps_get_the_bus_and_the_serial_ports_in_their_environment(write_scenario):
-    from master.participants import ParticipantBridge, serial_env
+    from master.links.participants import ParticipantBridge, serial_env
 
     sc = load_scenario(scenario(write_scenario, bus_tables("zenoh") + echo("rsu")))
     bridge = ParticipantBridge(sc.participants, "lockstep", 1.0, "x")

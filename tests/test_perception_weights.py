@@ -34,7 +34,7 @@ torch.set_num_threads(1)
 
 @pytest.fixture(scope="module")
 def fresh(tmp_path_factory):
-    from master.scenario import load_scenario
+    from master.scenario.loader import load_scenario
     from master.world.dataset import make_dataset
 
     out = tmp_path_factory.mktemp("heldout")

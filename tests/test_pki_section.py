@@ -7,8 +7,8 @@ import pytest
 
 from bridges.security import ScenarioCA, load_credentials
 from master.errors import ScenarioError
-from master.pki_section import CA_NAME, PkiSpec, ensure
-from master.scenario import load_scenario
+from master.scenario.pki import CA_NAME, PkiSpec, ensure
+from master.scenario.loader import load_scenario
 
 STATIONS = {"rsu": [0x7F, 0x82], "cav": [0x20]}
 
@@ -49,7 +49,7 @@ def test_a_bad_pki_table_is_refused_naming_the_key(write_scenario, table, reason
 
 
 def test_a_run_makes_the_keys_before_anything_else(write_scenario, tmp_path):
-    from master.cosim import CoSimulation
+    from master.run.cosim import CoSimulation
 
     sc = load_scenario(write_scenario('[time]\nstop = 0.05\n[fmus.cav]\nfmu = "{vehicle}"\n'
                                       '[pki]\ndir = "run-keys"\nstations = { rsu = "0x7f" }\n'))

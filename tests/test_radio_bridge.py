@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 
 from fmus.channel.model import ChannelModel, ChannelParams
-from master.radio_bridge import Air, Station, V2xSpec, parse_v2x
+from master.links.radio_bridge import Air, Station, V2xSpec, parse_v2x
 from master.world.los import line_of_sight
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -1,4 +1,4 @@
-"""master.report: the HTML page and the clip from a run folder (a synthetic one here; the case-study
+"""master.report.page: the HTML page and the clip from a run folder (a synthetic one here; the case-study
 tests check a real run's report)."""
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ import pytest
 import tomli_w
 
 from bridges import v2x
-from master.collision import Body, CollisionCheck
-from master.metrics import TRACE
-from master.report import ReportError, load_run, verdict_lines, write_report
+from master.run.collision import Body, CollisionCheck
+from master.run.metrics import TRACE
+from master.report.page import ReportError, load_run, verdict_lines, write_report
 
 CAR, VAN = Body("cav", 4.5, 1.8, 1.0), Body("ev", 6.5, 2.3, 1.42)
 

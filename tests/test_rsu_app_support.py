@@ -207,7 +207,7 @@ class Truth:
     """Vehicle centres and headings from a run's timeseries.csv."""
 
     def __init__(self, run_dir: Path, scenario: Path, vehicles=("cav", "ev")):
-        from master.scenario import load_scenario
+        from master.scenario.loader import load_scenario
 
         sc = load_scenario(scenario)
         rows = list(csv.DictReader(open(run_dir / "timeseries.csv")))

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from bridges.v2x import AIR_ARRIVAL, CAN_APPLIED, FRAME, SEND
-from master.metrics import applied_times, read_csv, read_jsonl, with_can_applied
+from master.run.metrics import applied_times, read_csv, read_jsonl, with_can_applied
 import test_hil_netns
 from test_hil_netns import BOX_IP, MASTER_IP
 

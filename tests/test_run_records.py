@@ -8,7 +8,7 @@ from types import SimpleNamespace
 
 from bridges.transport import open_bus
 from bridges.v2x import trace_key
-from master.run_records import TraceRecorder
+from master.run.run_records import TraceRecorder
 
 
 def test_trace_records_are_kept_and_garbage_is_counted(tmp_path):

@@ -10,12 +10,12 @@ import json
 
 import pytest
 
-from master.cosim import CoSimulation
+from master.run.cosim import CoSimulation
 from master.errors import ScenarioError
 from master.hooks import Hook
-from master.scenario import load_scenario
-from master.summary import format_summary
-from master.verdict import realtime_warning
+from master.scenario.loader import load_scenario
+from master.run.summary import format_summary
+from master.run.verdict import realtime_warning
 
 CROSSING = """
 [time]

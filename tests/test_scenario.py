@@ -5,7 +5,7 @@ import pytest
 
 from master.cli import main
 from master.errors import ScenarioError
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 
 GOOD = """
 connections = ["a.a -> b.accel_cmd"]
@@ -180,7 +180,7 @@ def test_once_per_process_fmu_cannot_have_two_instances(write_scenario, vehicle_
 def test_unsupported_variable_kinds_are_named():
     from types import SimpleNamespace
 
-    from master.fmu_variables import unsupported_reason
+    from master.fmi.variables import unsupported_reason
 
     array = SimpleNamespace(name="grid", type="Float64", dimensions=[object()])
     binary = SimpleNamespace(name="blob", type="Binary", dimensions=[])

@@ -10,9 +10,9 @@ import uuid
 
 import pytest
 
-from master.cosim import CoSimulation
+from master.run.cosim import CoSimulation
 from master.errors import ScenarioError
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 
 BASE = """
 [scenario]

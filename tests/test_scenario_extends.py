@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from master.errors import ScenarioError
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ROOT / "scenarios"

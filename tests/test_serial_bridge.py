@@ -13,9 +13,9 @@ import pytest
 import serial
 
 from bridges import ab3418 as a
-from master.cosim import CoSimulation
+from master.run.cosim import CoSimulation
 from master.errors import ScenarioError
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = ROOT / "scenarios" / "intersection_signal.toml"

@@ -1,4 +1,4 @@
-"""SSP 1.0 exchange (master.ssp_export, master.ssp_import): `v2i export-ssp`, `v2i run system.ssp`.
+"""SSP 1.0 exchange (master.scenario.ssp_export, master.scenario.ssp_import): `v2i export-ssp`, `v2i run system.ssp`.
 
 What is checked, each against something independent of our own reader where one exists:
 
@@ -28,10 +28,10 @@ import pytest
 from lxml import etree
 
 from master.errors import ScenarioError
-from master.scenario import load_scenario
-from master.ssp import NS, schema
-from master.ssp_export import export_ssp
-from master.ssp_import import read_ssp
+from master.scenario.loader import load_scenario
+from master.scenario.ssp import NS, schema
+from master.scenario.ssp_export import export_ssp
+from master.scenario.ssp_import import read_ssp
 
 ROOT = Path(__file__).resolve().parent.parent
 THREE = ROOT / "tests" / "scenarios" / "ssp_three_fmus.toml"

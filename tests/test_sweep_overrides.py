@@ -1,4 +1,4 @@
-"""`--set KEY=VALUE` (master.overrides): parsing and typing of values, key paths into tables and arrays of
+"""`--set KEY=VALUE` (master.scenario.overrides): parsing and typing of values, key paths into tables and arrays of
 tables, refusal of what cannot land, validation of the merged scenario with the loader's own messages, and
 `v2i run --set` end to end (the run folder's resolved scenario shows the value)."""
 from __future__ import annotations
@@ -14,9 +14,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from master.errors import ScenarioError
-from master.overrides import (OverrideError, Segment, apply_overrides, parse_key, parse_override, parse_value,
+from master.scenario.overrides import (OverrideError, Segment, apply_overrides, parse_key, parse_override, parse_value,
                               toml_literal)
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 V2I = Path(sys.executable).parent / "v2i"

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from master.errors import ScenarioError
-from master.overrides import apply_overrides, parse_override
-from master.scenario import load_scenario, read_raw
-from master.sweep_point import free_port, per_point_overrides, point_ports
+from master.scenario.overrides import apply_overrides, parse_override
+from master.scenario.loader import load_scenario, read_raw
+from master.sweep.point import free_port, per_point_overrides, point_ports
 
 ROOT = Path(__file__).resolve().parent.parent
 CASE_STUDY = ROOT / "scenarios" / "ima_case_study.toml"
@@ -81,7 +81,7 @@ def test_participant_args_and_scenario_values_in_the_command(fmu_dir):
 
 
 def test_args_need_a_command(fmu_dir):
-    from master.participants import parse_participants
+    from master.links.participants import parse_participants
 
     problems = []
     parse_participants({}, {"box": {"args": ["-v"]}}, ROOT, lambda k, r: problems.append(f"{k}: {r}"))

@@ -1,4 +1,4 @@
-"""Sweep files (master.sweep_spec): axes from lists, ranges and seeded draws, product / zip / groups, variant
+"""Sweep files (master.sweep.spec): axes from lists, ranges and seeded draws, product / zip / groups, variant
 axes, stable point ids and folders, and every problem of a bad file named by its key; the shipped sweeps
 load and every one of their points makes a valid scenario."""
 from __future__ import annotations
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from master.sweep_spec import SweepError, load_sweep
+from master.sweep.spec import SweepError, load_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = ROOT / "tests" / "scenarios" / "sweep_tiny.toml"
@@ -145,8 +145,8 @@ def test_every_problem_at_once_and_a_missing_base(tmp_path):
 
 @pytest.mark.parametrize("name, n", [("dse", 12), ("radio_loss", 21), ("nhtsa_variants", 20)])
 def test_the_shipped_sweeps_load_and_every_point_is_a_valid_scenario(fmu_dir, name, n):
-    from master.sweep import check_points
-    from master.sweep_dse import check_dse
+    from master.sweep.runner import check_points
+    from master.sweep.dse import check_dse
 
     spec = load_sweep(ROOT / "scenarios" / "sweeps" / f"{name}.toml")
     points = spec.points()

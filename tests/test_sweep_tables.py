@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from master.sweep import SweepResult, safe_limits
-from master.sweep_dse import check_dse, write_dse
-from master.sweep_spec import load_sweep
-from master.sweep_table import columns, flatten, rows
+from master.sweep.runner import SweepResult, safe_limits
+from master.sweep.dse import check_dse, write_dse
+from master.sweep.spec import load_sweep
+from master.sweep.table import columns, flatten, rows
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = ROOT / "tests" / "scenarios" / "sweep_tiny.toml"

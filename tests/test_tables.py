@@ -17,9 +17,9 @@ from types import SimpleNamespace
 import pytest
 
 from master.errors import ScenarioError
-from master.scenario import load_scenario
-from master.sections import SECTIONS, section_keys
-from master.tables import Table, did_you_mean, is_number, suggest
+from master.scenario.loader import load_scenario
+from master.scenario.sections import SECTIONS, section_keys
+from master.scenario.tables import Table, did_you_mean, is_number, suggest
 
 
 def read(raw, prefix="can"):
@@ -229,9 +229,9 @@ def test_every_section_names_a_reader_that_exists():
 
 def test_a_scenario_without_sections_imports_no_section_module(fmu_dir):
     """The readers are imported only for the sections a file has: no pybullet, python-can or zenoh for the rest."""
-    code = ("import sys; from master.scenario import load_scenario; load_scenario('scenarios/two_vehicles.toml'); "
-            "print(sorted(m for m in ('pybullet', 'can', 'zenoh', 'torch', 'master.can_bridge', "
-            "'master.world.layout', 'master.participants', 'master.radio_bridge', 'master.serial_bridge') "
+    code = ("import sys; from master.scenario.loader import load_scenario; load_scenario('scenarios/two_vehicles.toml'); "
+            "print(sorted(m for m in ('pybullet', 'can', 'zenoh', 'torch', 'master.links.can_bridge', "
+            "'master.world.layout', 'master.links.participants', 'master.links.radio_bridge', 'master.links.serial_bridge') "
             "if m in sys.modules))")
     root = Path(__file__).resolve().parent.parent
     out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120,

@@ -38,9 +38,9 @@ from pathlib import Path
 import pytest
 
 from master.cli import main as cli_main
-from master.cosim import CoSimulation
+from master.run.cosim import CoSimulation
 from master.hooks import Hook
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 
 FMU_SOURCES = Path(__file__).resolve().parent / "third_party_fmu"
 H = 0.1

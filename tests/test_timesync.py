@@ -18,6 +18,9 @@ from bridges.transport import TransportError, open_bus
 from bridges.transport.memory import MemoryBus
 
 _ids = itertools.count()
+# A thread of ours that dies with an exception (a tick resending on a closed bus) fails the test it happens in,
+# instead of a warning that a clean run would print.
+pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 
 
 @pytest.fixture
@@ -416,13 +419,15 @@ def test_measured_latency_policy_adds_processing_time(buses):
     c = coordinator(buses("master"), "av", latency_policy="measured")
     p = Participant(buses("av"), "av", "av_app")
     p.join(5)
-    threading.Thread(target=c.tick, args=(0, 1.5), daemon=True).start()
+    ticking = threading.Thread(target=c.tick, args=(0, 1.5), daemon=True)
+    ticking.start()
     tick = p.next_tick(5)
     assert p.output_time("plan", processing_s=0.0123) == 1.5 + 0.0123
     with pytest.raises(ValueError, match="'measured' latency policy needs processing_s"):
         p.output_time("plan")
     p.ack(tick, 0.0123)
-    time.sleep(0.1)
+    ticking.join(5)  # the ack ends the tick: no ticking thread outlives the test and its buses
+    assert not ticking.is_alive()
     rep = c.report()
     assert rep["latency_policy"] == "measured"
     assert rep["members"]["av"]["processing_s"]["max"] == pytest.approx(0.0123)
@@ -493,6 +498,22 @@ def test_closing_the_coordinator_ends_a_tick_still_waiting(buses):
     ticking.join(2)
     assert not ticking.is_alive() and errors == []
     assert c.report()["members"]["mute"]["timeouts"] == 0
+    p.close()
+
+
+def test_a_closed_coordinator_publishes_nothing(buses):
+    """A tick() or announce() that starts after close() (a ticking thread racing with the end of the run) returns
+    without touching the bus its owner closes next: publishing there raised TransportError in that thread."""
+    bus = buses("master")
+    c = coordinator(bus, Expected("mute", timeout_s=30), heartbeat_timeout_s=30)
+    p = Participant(buses("mute"), "mute", "x")
+    p.join(5)
+    c.close()
+    bus.close()
+    c.tick(0, 0.0)
+    c.announce(1, 0.1)
+    c.publish_mapping(0.0, time.time_ns(), 1.0)
+    assert c.ticks == 0 and p.next_tick(0.2) is None
     p.close()
 
 

@@ -228,8 +228,8 @@ def test_T6_default_eight_phase_plan_full_cycle_phase_by_phase(tlc_fmu):
 def test_scenario_plan_full_cycle_through_the_master(tmp_path, tlc_fmu):
     """scenarios/intersection_signal.toml, run by the master: the 2-phase plan phase by phase for two
     cycles; yellow and red clearance from the ITE helpers for 50 km/h (T1-T3)."""
-    from master.cosim import CoSimulation
-    from master.scenario import load_scenario
+    from master.run.cosim import CoSimulation
+    from master.scenario.loader import load_scenario
 
     p = scenario_parameters()
     assert p["yellow_2"] == design_yellow(50 / 3.6) == 3.3

@@ -14,9 +14,9 @@ from bridges.j2735.spat import IntersectionSignals, Movement, Spat
 from bridges.security import PSID_SPAT_MAP, PSID_SURROGATE_BSM, ScenarioCA, Signer, time64_us
 from bridges.security.oer import unsecured
 from bridges.v2x import FRAME, SEND, stamp_ns
-from master.metrics import run_metrics
-from master.radio_bridge import Air, RadioBridge, Station, V2xSpec
-from master.v2x_subject import (BEYOND_GATE, NOT_A_BSM, SubjectFinder, UNKNOWN_BODY_EXTRA_M, nearest,
+from master.run.metrics import run_metrics
+from master.links.radio_bridge import Air, RadioBridge, Station, V2xSpec
+from master.links.v2x_subject import (BEYOND_GATE, NOT_A_BSM, SubjectFinder, UNKNOWN_BODY_EXTRA_M, nearest,
                                 unwrap, world_bodies)
 from master.world.layout import VehicleSpec, WorldLayout
 

@@ -14,7 +14,7 @@ import pytest
 
 pytest.importorskip("pybullet")
 
-from master.scenario import load_scenario  # noqa: E402
+from master.scenario.loader import load_scenario  # noqa: E402
 from master.world.ground_truth import frame_truth  # noqa: E402
 from master.world.world import World  # noqa: E402
 
@@ -106,7 +106,7 @@ def test_occlusion_fraction_when_hidden(case):
 
 def test_cosim_poses_vehicles_and_renders_at_rate(fmu_dir, tmp_path):
     """In the master's loop the world renders each camera at 10 Hz: 1 s gives frames at 0.0..1.0 s (11)."""
-    from master.cosim import CoSimulation
+    from master.run.cosim import CoSimulation
 
     sc = load_scenario(SCENARIO)
     sc.time.stop = 1.0

@@ -12,7 +12,7 @@ import pytest
 from PIL import Image
 
 from master.cli import main
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 from master.world.camera import Lighting
 from master.world.dataset import (CATEGORY_ID, DatasetError, HELDOUT, TRAIN, PlacedVehicle, Sample, draw_sample,
                                   make_dataset, rectangles_overlap, render_sample)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 
 from master.errors import ScenarioError
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 
 BASE = """
 [time]
@@ -109,7 +109,7 @@ sigma_h = 1.5
 [world.vehicles.car.lidar]
 channels = 8
 """))
-    from master.recorder import _toml_safe
+    from master.run.recorder import _toml_safe
 
     path = tmp_path / "resolved.toml"
     path.write_text(tomli_w.dumps(_toml_safe(sc.resolved())))

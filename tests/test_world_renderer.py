@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 from master.world import renderer
 from master.world.world import World
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from master.errors import ScenarioError
-from master.scenario import load_scenario
+from master.scenario.loader import load_scenario
 from master.world.gnss import Gnss
 from master.world.layout import GnssSpec
 
@@ -92,7 +92,7 @@ def test_lidar_and_gnss_in_the_loop(fmu_dir, tmp_path):
     the ev at 4.7 s (see test_world_case_study), then in every scan; its GNSS gives 51 fixes at 10 Hz
     whose horizontal error is near sigma_h * sqrt(2)."""
     pytest.importorskip("pybullet")
-    from master.cosim import CoSimulation
+    from master.run.cosim import CoSimulation
 
     sc = load_scenario(SCENARIO)
     sc.time.stop = 5.0

@@ -18,7 +18,7 @@ pytest.importorskip("pybullet")
 import pybullet as pb  # noqa: E402
 
 from master.errors import ScenarioError  # noqa: E402
-from master.scenario import load_scenario  # noqa: E402
+from master.scenario.loader import load_scenario  # noqa: E402
 from master.world import signals  # noqa: E402
 from master.world.layout import CameraSpec, SignalSpec, WorldLayout  # noqa: E402
 from master.world.world import World  # noqa: E402
@@ -140,7 +140,7 @@ def test_set_signal_recolours_only_on_change():
 
 
 def test_lamps_follow_controller_over_a_cycle(write, tmp_path):
-    from master.cosim import CoSimulation
+    from master.run.cosim import CoSimulation
 
     sc = load_scenario(write(PLAN + HEADS))
     assert [(s.name, s.instance, s.signal_group) for s in sc.world.signals] == [("nb", "tlc", 2), ("eb", "tlc", 4)]

@@ -11,7 +11,7 @@ pytest.importorskip("pybullet")
 
 from master.cli import main  # noqa: E402
 from master.world.layout import CameraSpec, WorldLayout  # noqa: E402
-from master.snapshot import camera_footprint  # noqa: E402
+from master.report.snapshot import camera_footprint  # noqa: E402
 from master.world.world import World  # noqa: E402
 
 SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ima_world.toml"

@@ -130,16 +130,17 @@ class Coordinator:
         """Lockstep sync point: publish tick k and wait for the acks of every participant due at k."""
         with self._cond:
             self._raise_fatal()
+            if self._closed:  # a ticking thread racing with close(): the bus is about to close, nobody can ack
+                return
             self._k, self._t = k, t
             self._waiting = {n for n, s in self.members.items() if s.active and k % s.spec.sync_every == 0}
             if not self._waiting:
                 return
-        payload = m.encode(m.Tick(k, t, step))
-        self.ticks += 1
-        started = time.monotonic()
-        last_send = started
-        self.bus.publish(m.TICK, payload, t)
-        with self._cond:
+            payload = m.encode(m.Tick(k, t, step))
+            self.ticks += 1
+            started = time.monotonic()
+            last_send = started
+            self.bus.publish(m.TICK, payload, t)  # under the lock, like the resends: never after close()
             while True:
                 self._raise_fatal()  # before the exit test: a lost participant leaves the waiting set
                 if not self._waiting or self._closed:
@@ -166,14 +167,19 @@ class Coordinator:
                         self._cond.acquire()
 
     def announce(self, k: int, t: float, step: float = 0.0) -> None:
-        """Realtime sync point: publish the tick, never wait."""
+        """Realtime sync point: publish the tick, never wait (nothing once closed)."""
         with self._cond:
+            if self._closed:
+                return
             self._k, self._t = k, t
-        self.ticks += 1
-        self.bus.publish(m.TICK, m.encode(m.Tick(k, t, step)), t)
+            self.ticks += 1
+            self.bus.publish(m.TICK, m.encode(m.Tick(k, t, step)), t)
 
     def publish_mapping(self, t_sim0: float, wall0_ns: int, rtf: float) -> None:
-        self.bus.publish(m.MAPPING, m.encode(m.Mapping(t_sim0, wall0_ns, rtf)), t_sim0)
+        mapping = m.encode(m.Mapping(t_sim0, wall0_ns, rtf))  # a bad mapping raises here, closed or not
+        with self._cond:
+            if not self._closed:
+                self.bus.publish(m.MAPPING, mapping, t_sim0)
 
     def check(self) -> None:
         """Raise for a required participant that left or fell silent (realtime runs call this each step)."""
@@ -195,7 +201,8 @@ class Coordinator:
 
     def close(self) -> None:
         """Stop the heartbeat and the subscriptions. A tick() still waiting (in another thread) returns: its
-        acks can no longer arrive, and resending on a bus about to close would only raise there."""
+        acks can no longer arrive, and resending on a bus about to close would only raise there. A tick(),
+        announce() or publish_mapping() after close() publishes nothing."""
         self._stop.set()
         with self._cond:
             self._closed = True

@@ -95,7 +95,7 @@ class Welcome:
     heartbeat_s: float = 0.5
     master_timeout_s: float = 10.0
     # what every app needs to know of the scenario's world (1.1): {"origin": {"lat", "lon", "alt"}, ...};
-    # see bridges.geo and master.participants for the keys the master fills in
+    # see bridges.geo and master.links.participants for the keys the master fills in
     world: dict = field(default_factory=dict)
 
 

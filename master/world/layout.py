@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from bridges.geo import GeoError, GeoOrigin
-from master.tables import Table, did_you_mean, is_number
+from master.scenario.tables import Table, did_you_mean, is_number
 
 DEFAULT_WHEELBASE = 2.3927  # VehicleDynamics default (CommonRoad vehicle 1)
 VEHICLE_KINDS = ("car", "emergency")
@@ -209,14 +209,14 @@ def _boxes_overlap(a: Building, b: Building) -> bool:
 
 
 def read_section(value: Any, context) -> WorldLayout | None:
-    """The `[world]` section's reader (master.sections)."""
+    """The `[world]` section's reader (master.scenario.sections)."""
     return parse_world(value, context.instances, context.problem)
 
 
 def parse_world(table: Any, instances: dict, problem: Callable[[str, str], None]) -> WorldLayout | None:
     """Validate the `[world]` table; every problem goes to `problem(key, message)`.
 
-    `instances` maps FMU instance names to master.scenario.Instance (its
+    `instances` maps FMU instance names to master.scenario.loader.Instance (its
     `parameters` give a vehicle's start position and wheelbase).
     """
     t = Table(table, "world", problem)
