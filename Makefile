@@ -7,10 +7,6 @@ STAMP  := $(VENV)/.installed
 
 .PHONY: demo test fmus bench clean
 
-# The checkout keeps its own FMUs (an installed v2i uses the per-user cache, docs/installing.md):
-# `make clean` removes them, and the tests (tests/conftest.py) look in the same folder.
-export V2I_FMU_DIR := $(CURDIR)/build/fmus
-
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip

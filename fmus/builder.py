@@ -8,11 +8,14 @@ Python and pythonfmu's runtime are present. A content hash of those sources
 Every FMU is checked with `fmpy.validation.validate_fmu`; any message fails
 the build.
 
-The folder does not depend on where a command starts: `V2I_FMU_DIR` when set,
-else the user's cache (`~/.cache/v2i-cosim/fmus` on Linux, platformdirs' rule
-elsewhere). Several checkouts or installs may share that cache: the hash
-rebuilds an FMU built from other sources, and a finished FMU replaces the old
-file in one rename, so a process loading it never reads half a file.
+The folder does not depend on where a command starts: `V2I_FMU_DIR` when set;
+else, when these sources are a checkout of the project (an editable install),
+the checkout's `build/fmus`, so that each checkout builds from its own sources
+and `make clean` removes them; else (an installed wheel) the user's cache
+(`~/.cache/v2i-cosim/fmus` on Linux, platformdirs' rule elsewhere). Installs
+may share that cache: the hash rebuilds an FMU built from other sources, and a
+finished FMU replaces the old file in one rename, so a process loading it never
+reads half a file.
 """
 from __future__ import annotations
 
@@ -26,17 +29,33 @@ from dataclasses import dataclass
 from pathlib import Path
 
 PACKAGE_DIR = Path(__file__).resolve().parent
-FMU_DIR_VARIABLE = "V2I_FMU_DIR"  # overrides the cache folder (the test suite points it into the checkout)
+FMU_DIR_VARIABLE = "V2I_FMU_DIR"  # overrides the default folder below
+DISTRIBUTION = "v2i-cosim"
+
+
+def checkout_root() -> Path | None:
+    """The project checkout these sources belong to (its pyproject.toml names the project), or None
+    when they were installed from a wheel."""
+    root = PACKAGE_DIR.parent
+    try:
+        declares = f'name = "{DISTRIBUTION}"' in (root / "pyproject.toml").read_text()
+    except OSError:
+        return None
+    return root if declares else None
 
 
 def default_out_dir() -> Path:
-    """Where project FMUs are built and found: `$V2I_FMU_DIR`, else the per-user cache folder."""
+    """Where project FMUs are built and found: `$V2I_FMU_DIR`, else a checkout's build/fmus, else the
+    per-user cache folder (see the module's docstring)."""
     override = os.environ.get(FMU_DIR_VARIABLE)
     if override:
         return Path(override).expanduser()
+    root = checkout_root()
+    if root is not None:
+        return root / "build" / "fmus"
     import platformdirs
 
-    return platformdirs.user_cache_path("v2i-cosim", appauthor=False) / "fmus"
+    return platformdirs.user_cache_path(DISTRIBUTION, appauthor=False) / "fmus"
 
 # Modules of the `fmus` package every FMU needs at run time.
 _SHARED_MODULES = ("__init__.py", "slave_base.py", "units.py")

@@ -120,8 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("build-fmus", help="build the project's FMUs (skips unchanged ones)")
     b.add_argument("names", nargs="*", help="model identifiers to build (default: all)")
-    b.add_argument("--out", help="output folder (default: $V2I_FMU_DIR, else the per-user cache, e.g. "
-                   "~/.cache/v2i-cosim/fmus; `v2i run` looks there)")
+    b.add_argument("--out", help="output folder (default: where `v2i run` looks: $V2I_FMU_DIR, else a checkout's "
+                   "build/fmus, else the per-user cache, e.g. ~/.cache/v2i-cosim/fmus)")
     b.add_argument("--force", action="store_true", help="rebuild even if sources are unchanged")
     b.set_defaults(func=_cmd_build_fmus)
 

@@ -10,9 +10,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 FIXTURES = ROOT / "tests" / "fixtures"
-# The suite keeps its FMUs in this checkout (build/fmus, what `make fmus` builds and `make clean` removes),
-# not in the user's cache that other checkouts and installs share: every `v2i` process a test starts, and
-# the master in this process, look there.
+# The suite's FMUs are this checkout's build/fmus (where a checkout builds them, fmus.builder.default_out_dir,
+# and what `make clean` removes), also when the user's V2I_FMU_DIR names another folder: every `v2i`
+# process a test starts, and the master in this process, look there.
 FMU_DIR = ROOT / "build" / "fmus"
 os.environ["V2I_FMU_DIR"] = str(FMU_DIR)
 

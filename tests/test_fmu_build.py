@@ -108,22 +108,32 @@ def test_fmu_built_from_other_sources_is_rebuilt(tmp_path):
 
 
 def test_fmu_folder_does_not_depend_on_the_working_folder(tmp_path, monkeypatch):
-    """Without V2I_FMU_DIR the FMUs go to the user's cache (XDG_CACHE_HOME on Linux), from any folder."""
-    from fmus.builder import default_out_dir
+    """V2I_FMU_DIR wins; else a checkout keeps its FMUs in its build/fmus, and an installed wheel (no
+    pyproject.toml of the project beside its packages) in the user's cache (XDG_CACHE_HOME on Linux);
+    from any folder."""
+    import fmus.builder as builder
+    from conftest import ROOT
 
     monkeypatch.setenv("V2I_FMU_DIR", str(tmp_path / "mine"))
-    assert default_out_dir() == tmp_path / "mine"
+    assert builder.default_out_dir() == tmp_path / "mine"
     monkeypatch.delenv("V2I_FMU_DIR")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    seen = set()
+    installed = tmp_path / "site-packages" / "fmus"
+    installed.mkdir(parents=True)
+    (installed.parent / "pyproject.toml").write_text('[project]\nname = "another-project"\n')
+    seen = {"checkout": set(), "installed": set()}
     for folder in ("a", "b"):
         (tmp_path / folder).mkdir()
         monkeypatch.chdir(tmp_path / folder)
-        seen.add(default_out_dir())
-    (where,) = seen
-    assert where.is_absolute()
+        seen["checkout"].add(builder.default_out_dir())
+        with monkeypatch.context() as m:
+            m.setattr(builder, "PACKAGE_DIR", installed)
+            seen["installed"].add(builder.default_out_dir())
+    assert seen["checkout"] == {ROOT / "build" / "fmus"}
+    (cache,) = seen["installed"]
+    assert cache.is_absolute() and ROOT not in cache.parents
     if sys.platform.startswith("linux"):
-        assert where == tmp_path / "cache" / "v2i-cosim" / "fmus"
+        assert cache == tmp_path / "cache" / "v2i-cosim" / "fmus"
 
 
 def test_unknown_fmu_name_is_rejected(tmp_path):
