@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import sysconfig
@@ -96,6 +97,7 @@ def test_the_wheel_carries_every_data_file_of_the_packages(wheel):
             "rsu_app/perception/weights/detector.onnx"} <= data
     names = set(zipfile.ZipFile(wheel).namelist())
     assert sorted(data - names) == []
+    assert set(re.findall(r"v2i_cosim-[^\s\[\]\"`]*\.whl", DOC.read_text())) == {wheel.name}  # the page's file name
     examples = {n for n in names if n.startswith("master/examples/")}
     assert {"master/examples/two_vehicles.toml", "master/examples/ima_case_study.toml",
             "master/examples/apps/av.toml", "master/examples/apps/rsu.toml"} <= examples
