@@ -1,4 +1,4 @@
-"""Build the project's FMUs into `build/fmus/*.fmu`, skipping unchanged ones.
+"""Build the project's FMUs into one folder (`default_out_dir()`), skipping unchanged ones.
 
 Each `fmus/<name>/slave.py` defines one `V2iSlave` subclass; its class name
 is the FMU's model identifier. The FMU carries its own copy of the model
@@ -7,19 +7,56 @@ Python and pythonfmu's runtime are present. A content hash of those sources
 (plus pythonfmu's version and this builder) decides whether to rebuild.
 Every FMU is checked with `fmpy.validation.validate_fmu`; any message fails
 the build.
+
+The folder does not depend on where a command starts: `V2I_FMU_DIR` when set;
+else, when these sources are a checkout of the project (an editable install),
+the checkout's `build/fmus`, so that each checkout builds from its own sources
+and `make clean` removes them; else (an installed wheel) the user's cache
+(`~/.cache/v2i-cosim/fmus` on Linux, platformdirs' rule elsewhere). Installs
+may share that cache: the hash rebuilds an FMU built from other sources, and a
+finished FMU replaces the old file in one rename, so a process loading it never
+reads half a file.
 """
 from __future__ import annotations
 
 import hashlib
 import importlib
 import inspect
+import os
 import re
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 PACKAGE_DIR = Path(__file__).resolve().parent
-DEFAULT_OUT = Path("build") / "fmus"
+FMU_DIR_VARIABLE = "V2I_FMU_DIR"  # overrides the default folder below
+DISTRIBUTION = "v2i-cosim"
+
+
+def checkout_root() -> Path | None:
+    """The project checkout these sources belong to (its pyproject.toml names the project), or None
+    when they were installed from a wheel."""
+    root = PACKAGE_DIR.parent
+    try:
+        declares = f'name = "{DISTRIBUTION}"' in (root / "pyproject.toml").read_text()
+    except OSError:
+        return None
+    return root if declares else None
+
+
+def default_out_dir() -> Path:
+    """Where project FMUs are built and found: `$V2I_FMU_DIR`, else a checkout's build/fmus, else the
+    per-user cache folder (see the module's docstring)."""
+    override = os.environ.get(FMU_DIR_VARIABLE)
+    if override:
+        return Path(override).expanduser()
+    root = checkout_root()
+    if root is not None:
+        return root / "build" / "fmus"
+    import platformdirs
+
+    return platformdirs.user_cache_path(DISTRIBUTION, appauthor=False) / "fmus"
+
 # Modules of the `fmus` package every FMU needs at run time.
 _SHARED_MODULES = ("__init__.py", "slave_base.py", "units.py")
 # Wire-format modules shared with the apps: an FMU source that imports
@@ -143,19 +180,23 @@ def build_one(source: FmuSource, out_dir: Path) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     target = out_dir / f"{source.model_identifier}.fmu"
     alias = package_alias(source, source.content_hash())
-    with tempfile.TemporaryDirectory(prefix="v2i-fmu-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="v2i-fmu-") as tmp, \
+            tempfile.TemporaryDirectory(prefix=f".{source.model_identifier}-", dir=out_dir) as fresh:
         entry = _stage(source, Path(tmp), alias)
-        FmuBuilder.build_FMU(entry, dest=target, project_files=[Path(tmp) / alias])
-    problems = validate_fmu(str(target))
-    if problems:
-        target.unlink()
-        raise BuildError(f"{source.model_identifier}.fmu does not validate: " + "; ".join(problems))
+        # Built beside the target, then renamed over it: another process may be loading the old one.
+        built = Path(fresh) / target.name
+        FmuBuilder.build_FMU(entry, dest=built, project_files=[Path(tmp) / alias])
+        problems = validate_fmu(str(built))
+        if problems:
+            raise BuildError(f"{source.model_identifier}.fmu does not validate: " + "; ".join(problems))
+        os.replace(built, target)
     return target
 
 
-def build_all(out_dir: Path = DEFAULT_OUT, force: bool = False, only: list[str] | None = None) -> list[BuildResult]:
-    """Build every FMU whose sources changed since its last build (or all with `force`)."""
-    out_dir = Path(out_dir)
+def build_all(out_dir: Path | None = None, force: bool = False, only: list[str] | None = None) -> list[BuildResult]:
+    """Build every FMU whose sources changed since its last build (or all with `force`) into `out_dir`
+    (default: `default_out_dir()`)."""
+    out_dir = Path(out_dir) if out_dir is not None else default_out_dir()
     results = []
     sources = discover()
     known = {s.model_identifier for s in sources}
@@ -177,7 +218,7 @@ def build_all(out_dir: Path = DEFAULT_OUT, force: bool = False, only: list[str] 
     return results
 
 
-def project_fmu_path(name: str, out_dir: Path = DEFAULT_OUT) -> Path | None:
+def project_fmu_path(name: str, out_dir: Path | None = None) -> Path | None:
     """Path of a project FMU by model identifier, building it if needed; None if unknown."""
     if name not in {s.model_identifier for s in discover()}:
         return None

@@ -36,7 +36,7 @@ def _cmd_build_fmus(args) -> int:
     from fmus.builder import BuildError, build_all
 
     try:
-        results = build_all(Path(args.out), force=args.force, only=args.names or None)
+        results = build_all(Path(args.out) if args.out else None, force=args.force, only=args.names or None)
     except BuildError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -121,7 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("build-fmus", help="build the project's FMUs (skips unchanged ones)")
     b.add_argument("names", nargs="*", help="model identifiers to build (default: all)")
-    b.add_argument("--out", default="build/fmus", help="output folder (default: build/fmus)")
+    b.add_argument("--out", help="output folder (default: where `v2i run` looks: $V2I_FMU_DIR, else a checkout's "
+                   "build/fmus, else the per-user cache, e.g. ~/.cache/v2i-cosim/fmus)")
     b.add_argument("--force", action="store_true", help="rebuild even if sources are unchanged")
     b.set_defaults(func=_cmd_build_fmus)
 

@@ -1,6 +1,7 @@
 """Shared fixtures: the project's built FMUs and a helper to write scenario files."""
 from __future__ import annotations
 
+import os
 import shutil
 import textwrap
 from pathlib import Path
@@ -9,6 +10,11 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 FIXTURES = ROOT / "tests" / "fixtures"
+# The suite's FMUs are this checkout's build/fmus (where a checkout builds them, fmus.builder.default_out_dir,
+# and what `make clean` removes), also when the user's V2I_FMU_DIR names another folder: every `v2i`
+# process a test starts, and the master in this process, look there.
+FMU_DIR = ROOT / "build" / "fmus"
+os.environ["V2I_FMU_DIR"] = str(FMU_DIR)
 
 
 def fixture_path(relative: str) -> Path:
@@ -34,9 +40,8 @@ def fmu_dir() -> Path:
     """The project's FMUs, built (or found up to date) in build/fmus."""
     from fmus.builder import build_all
 
-    out = ROOT / "build" / "fmus"
-    build_all(out)
-    return out
+    build_all(FMU_DIR)
+    return FMU_DIR
 
 
 @pytest.fixture(scope="session")

@@ -1,6 +1,7 @@
 """The FMU build pipeline: clean validation, complete model descriptions, content-hash skipping."""
 from __future__ import annotations
 
+import sys
 import zipfile
 from pathlib import Path
 from xml.etree import ElementTree
@@ -90,6 +91,49 @@ def test_rebuild_when_output_missing(tmp_path):
     (tmp_path / "VehicleDynamics.fmu").unlink()
     again = {r.name: r.built for r in build_all(tmp_path)}
     assert again["VehicleDynamics"] is True
+
+
+def test_fmu_built_from_other_sources_is_rebuilt(tmp_path):
+    """The per-user cache is shared by every checkout and install: an FMU whose stamp is another
+    source's hash (another version of the project built it) is rebuilt, not taken."""
+    (first,) = build_all(tmp_path, only=["TrafficLightController"])
+    stamp = tmp_path / "TrafficLightController.sha256"
+    ours = stamp.read_text()
+    stamp.write_text("0" * 64 + "\n")
+    (again,) = build_all(tmp_path, only=["TrafficLightController"])
+    assert first.built and again.built and stamp.read_text() == ours
+    assert validate_fmu(str(again.path)) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["TrafficLightController.fmu",
+                                                          "TrafficLightController.sha256"]  # no leftovers
+
+
+def test_fmu_folder_does_not_depend_on_the_working_folder(tmp_path, monkeypatch):
+    """V2I_FMU_DIR wins; else a checkout keeps its FMUs in its build/fmus, and an installed wheel (no
+    pyproject.toml of the project beside its packages) in the user's cache (XDG_CACHE_HOME on Linux);
+    from any folder."""
+    import fmus.builder as builder
+    from conftest import ROOT
+
+    monkeypatch.setenv("V2I_FMU_DIR", str(tmp_path / "mine"))
+    assert builder.default_out_dir() == tmp_path / "mine"
+    monkeypatch.delenv("V2I_FMU_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    installed = tmp_path / "site-packages" / "fmus"
+    installed.mkdir(parents=True)
+    (installed.parent / "pyproject.toml").write_text('[project]\nname = "another-project"\n')
+    seen = {"checkout": set(), "installed": set()}
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        monkeypatch.chdir(tmp_path / folder)
+        seen["checkout"].add(builder.default_out_dir())
+        with monkeypatch.context() as m:
+            m.setattr(builder, "PACKAGE_DIR", installed)
+            seen["installed"].add(builder.default_out_dir())
+    assert seen["checkout"] == {ROOT / "build" / "fmus"}
+    (cache,) = seen["installed"]
+    assert cache.is_absolute() and ROOT not in cache.parents
+    if sys.platform.startswith("linux"):
+        assert cache == tmp_path / "cache" / "v2i-cosim" / "fmus"
 
 
 def test_unknown_fmu_name_is_rejected(tmp_path):

@@ -145,8 +145,11 @@ def _no_co_simulation(file_name: str, md) -> str:
 
 
 def fmu_search_dir() -> Path:
-    """Where built project FMUs live (`V2I_FMU_DIR`, default `build/fmus`)."""
-    return Path(os.environ.get("V2I_FMU_DIR", "build/fmus"))
+    """Where built project FMUs live: `V2I_FMU_DIR`, else a checkout's build/fmus, else the per-user cache
+    (fmus.builder.default_out_dir); the same folder whatever folder the run starts in."""
+    from fmus.builder import default_out_dir
+
+    return default_out_dir()
 
 
 def resolve_fmu(spec: str, base_dir: Path) -> Path:
