@@ -4,7 +4,7 @@ Everything else about the package is in pyproject.toml. The shipped scenarios
 (`scenarios/`: the case study, its app configs under apps/, the sweeps) lie
 outside the seven packages, whose top-level names the design fixes; the wheel
 carries their `.toml` files as `master/examples/`, and `v2i examples DIR`
-(master/examples_cli.py) copies them out for an installed user
+(master/scenario/examples_cli.py) copies them out for an installed user
 (docs/installing.md). Only `.toml` files, never what a run left there (the
 keys it provisioned under scenarios/keys/). An editable install needs no copy:
 `v2i examples` reads the checkout's scenarios/ itself.

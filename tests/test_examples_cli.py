@@ -11,7 +11,7 @@ import pytest
 
 from conftest import ROOT
 from master.cli import main
-from master.examples_cli import ExamplesError, copy_examples, examples_source
+from master.scenario.examples_cli import ExamplesError, copy_examples, examples_source
 
 
 def test_copies_every_shipped_scenario_with_its_layout(tmp_path, capsys):
