@@ -37,7 +37,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 # `v2i <command>` invocations cheap enough to run in the test suite (a few seconds each)
-CHEAP = {"validate", "info", "j2735", "pki", "snapshot", "run", "export-ssp"}
+CHEAP = {"validate", "info", "j2735", "pki", "snapshot", "run", "export-ssp", "examples"}
 CONTROL = {"|", "||", "&&", ";", "&"}
 REDIRECT = {">", ">>", "<"}
 FENCE = re.compile(r"^\s*```(\S*)")
