@@ -560,6 +560,7 @@ class Sdsm(Kept, Framed):
 
     @classmethod
     def from_asn1(cls, m: dict[str, Any]) -> "Sdsm":
+        _refuse_unknown_extensions(m, "SDSM")
         ref, accuracy = m["refPos"], m["refPosXYConf"]
         sdsm = cls(source_id=m["sourceID"], objects=[DetectedObject.from_asn1(o) for o in m["objects"]],
                    latitude=f.from_wire(scales.LATITUDE, ref["lat"]),
@@ -572,6 +573,24 @@ class Sdsm(Kept, Framed):
                    orientation=f.from_wire(scales.SEMI_AXIS_ORIENTATION, accuracy["orientation"]),
                    elevation_confidence=m.get("refPosElConf"))
         return sdsm._keep(m)
+
+
+def _refuse_unknown_extensions(value: Any, where: str) -> None:
+    """An enumerated value or CHOICE alternative added by a later edition decodes as None (asn1tools cannot
+    name it); the typed message cannot carry it on, so it is refused here with where it was."""
+    if value is None:
+        raise J2735Error(f"{where}: a value this edition does not define (an extension of a later one)")
+    if isinstance(value, dict):
+        for key, item in value.items():
+            _refuse_unknown_extensions(item, f"{where}.{key}")
+    elif isinstance(value, list):
+        for index, item in enumerate(value):
+            _refuse_unknown_extensions(item, f"{where}[{index}]")
+    elif isinstance(value, tuple) and len(value) == 2 and (value[0] is None or isinstance(value[0], str)):
+        if value[0] is None:
+            raise J2735Error(f"{where}: a CHOICE alternative this edition does not define (an extension of a "
+                             "later one)")
+        _refuse_unknown_extensions(value[1], f"{where}.{value[0]}")
 
 
 def _object(o: Any, index: int) -> DetectedObject:
