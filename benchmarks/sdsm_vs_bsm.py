@@ -16,7 +16,13 @@ second, its digest otherwise, as the RSU sends), and a receiver verifies
   tracks, UPER encode, sign), wall ms, median over repeats of the mean over
   `cycles` cycles;
 * verify+decode per cycle: every frame of the cycle verified and decoded to
-  the typed message, likewise.
+  the typed message, likewise;
+* through the channel model (fmus/channel, 802.11p at 6 Mb/s, 23 dBm, NIST
+  error model so that PER depends on the frame's length, no other traffic):
+  the RSU's own airtime per second (its share of the channel busy ratio,
+  MAC header included) and the expected PDR of its frames at 100, 200 and
+  300 m (an SDSM lost loses every object in it; a BSM lost loses one).
+  C-V2X and a loaded channel are not compared here.
 
 Prints a table and writes JSON (default benchmarks/results/sdsm_vs_bsm.json).
 """
@@ -37,6 +43,8 @@ import numpy as np  # noqa: E402
 
 from benchmarks.common import RESULTS, machine_info, summary, write_report  # noqa: E402
 from bridges.geo import GeoOrigin  # noqa: E402
+from fmus.channel import errors as channel_errors  # noqa: E402
+from fmus.channel.model import ChannelModel  # noqa: E402
 from bridges.j2735 import Sdsm  # noqa: E402
 from bridges.j2735.bsm import Bsm  # noqa: E402
 from bridges.security import PSID_SURROGATE_BSM, ScenarioCA, Signer, Verifier, time64_us  # noqa: E402
@@ -88,7 +96,7 @@ def measure(kind: str, n: int, cycles: int, ca, credentials, epoch: float, seed:
     decode = Bsm.decode if kind == "bsm" else Sdsm.decode
     frames = nbytes = 0
     first_second_frames = first_second_bytes = 0
-    send_s, receive_s = [], []
+    send_s, receive_s, sizes = [], [], []
     for k in range(cycles):
         t = k / RATE_HZ
         moved = [TrackState(s.id, t, s.x + s.vx * t, s.y + s.vy * t, s.vx, s.vy, s.speed, s.heading, s.label, True, 0,
@@ -106,11 +114,28 @@ def measure(kind: str, n: int, cycles: int, ca, credentials, epoch: float, seed:
         frames += len(txs)
         nbytes += sum(len(tx.payload) for tx in txs)
         if k < RATE_HZ:  # the first second: one full certificate per signer, digests after
+            sizes += [len(tx.payload) for tx in txs]
             first_second_frames += len(txs)
             first_second_bytes += sum(len(tx.payload) for tx in txs)
-    return {"frames_per_s": first_second_frames, "bytes_per_s": first_second_bytes,
+    return {"frames_per_s": first_second_frames, "bytes_per_s": first_second_bytes, "frame_bytes": sizes,
             "bytes_per_frame_mean": nbytes / frames, "encode_sign_ms": 1e3 * statistics.fmean(send_s),
             "verify_decode_ms": 1e3 * statistics.fmean(receive_s)}
+
+
+PDR_DISTANCES_M = (100.0, 200.0, 300.0)
+
+
+def channel_figures(model: ChannelModel, frame_bytes: list[int]) -> dict:
+    """The RSU's own 802.11p airtime in one second of these frames, and their mean expected PDR by distance."""
+    p = model.p
+    airtime = float(sum(channel_errors.ofdm_80211p_airtime_s(b + p.mac_header_bytes, p.data_rate_bps, p.bandwidth_hz)
+                        for b in frame_bytes))
+    pdr = {}
+    for d in PDR_DISTANCES_M:
+        links = model.evaluate(np.zeros((len(frame_bytes), 3)), np.tile([d, 0.0, 0.0], (len(frame_bytes), 1)),
+                               packet_bytes=np.asarray(frame_bytes))
+        pdr[f"{d:g}"] = float(np.mean(links.pdr))
+    return {"own_busy_ratio": airtime, "pdr": pdr}
 
 
 def main(argv=None) -> int:
@@ -131,6 +156,7 @@ def main(argv=None) -> int:
     epoch = time.time() + 5.0  # within the certificate's validity, which starts when it is issued
     rows, report = [], {"machine": machine_info(), "rate_hz": RATE_HZ, "repeats": args.repeats,
                         "cycles": args.cycles, "results": {}}
+    dsrc = ChannelModel(technology="dsrc", error_model="nist").prepare()
     for kind in ("bsm", "sdsm"):  # warm-up: the codec compiles its ASN.1 on first use, caches fill
         measure(kind, 2, int(RATE_HZ), ca, credentials, epoch, seed=0)
     for n in counts:
@@ -143,18 +169,23 @@ def main(argv=None) -> int:
                 "bytes_per_frame_mean": runs[0]["bytes_per_frame_mean"],
                 "encode_sign_ms": summary([r["encode_sign_ms"] for r in runs]),
                 "verify_decode_ms": summary([r["verify_decode_ms"] for r in runs]),
+                "dsrc": channel_figures(dsrc, runs[0]["frame_bytes"]),
             }
         report["results"][str(n)] = entry
         b, s = entry["bsm"], entry["sdsm"]
         rows.append((n, b["frames_per_s"], s["frames_per_s"], b["bytes_per_s"], s["bytes_per_s"],
                      b["encode_sign_ms"]["median"], s["encode_sign_ms"]["median"],
-                     b["verify_decode_ms"]["median"], s["verify_decode_ms"]["median"]))
+                     b["verify_decode_ms"]["median"], s["verify_decode_ms"]["median"],
+                     100 * b["dsrc"]["own_busy_ratio"], 100 * s["dsrc"]["own_busy_ratio"],
+                     b["dsrc"]["pdr"]["200"], s["dsrc"]["pdr"]["200"], b["dsrc"]["pdr"]["300"],
+                     s["dsrc"]["pdr"]["300"]))
     header = ("objects", "BSM fr/s", "SDSM fr/s", "BSM B/s", "SDSM B/s", "BSM enc+sign ms", "SDSM enc+sign ms",
-              "BSM ver+dec ms", "SDSM ver+dec ms")
+              "BSM ver+dec ms", "SDSM ver+dec ms", "BSM airtime %", "SDSM airtime %", "BSM PDR 200 m",
+              "SDSM PDR 200 m", "BSM PDR 300 m", "SDSM PDR 300 m")
     print(" | ".join(header))
     print(" | ".join("---" for _ in header))
     for row in rows:
-        print(" | ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in row))
+        print(" | ".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row))
     write_report(args.json, report)
     return 0
 
