@@ -48,6 +48,7 @@ from rsu_app.envelope import Envelope
 from rsu_app.health import Health, clean, percentiles_ms
 from rsu_app.intersection_map import intersection_geometry
 from rsu_app.perception_stage import PerceptionStage
+from rsu_app.sdsm_stage import SdsmStage
 from rsu_app.spat_stage import MapStage, SpatStage
 from rsu_app.timing import LatencyModel
 
@@ -102,7 +103,10 @@ class RsuApp:
         self.name = settings.name or "rsu"
         self.station = settings.station or self.name
         self.serial_url = settings.spat.url or environ.get(serial_env(settings.spat.serial)) or None
-        psids = [PSID_SURROGATE_BSM] if settings.camera.names else []
+        messages = settings.v2x.messages
+        psids = [PSID_SURROGATE_BSM] if settings.camera.names and "surrogate_bsm" in messages else []
+        if settings.camera.names and "sdsm" in messages:
+            psids.append(settings.v2x.sdsm_psid)
         if self.serial_url or settings.map.enabled:
             psids.append(PSID_SPAT_MAP)
         self.envelope = Envelope.load(settings.security.mode, settings.security.pki_dir,
@@ -137,10 +141,14 @@ class RsuApp:
         lockstep = w.mode == "lockstep"
         self.latency = LatencyModel(w.mode, w.latency_policy, w.latencies, self.s.inference_s())
         self.salt = session_salt(self.station, s.seed, lockstep)
-        perception = bsm = spat = map_stage = None
+        perception = bsm = sdsm = spat = map_stage = None
         if self.detector is not None:
             perception = PerceptionStage.from_settings(self.detector, s, world.get("intersection"))
-            bsm = BsmStage(self.station, origin, epoch, self.salt, self.envelope, self.latency)
+            if "surrogate_bsm" in s.v2x.messages:
+                bsm = BsmStage(self.station, origin, epoch, self.salt, self.envelope, self.latency)
+            if "sdsm" in s.v2x.messages:
+                sdsm = SdsmStage(self.station, origin, epoch, self.salt, self.envelope, self.latency,
+                                 s.v2x.sdsm_psid)
         if self.serial_url:
             groups = s.spat.signal_groups or sorted({int(h["signal_group"]) for h in world.get("signals") or ()
                                                      if "signal_group" in h}) or DEFAULT_SIGNAL_GROUPS
@@ -156,7 +164,7 @@ class RsuApp:
                 log.info("no MAP: %s", exc)
         return RsuCore(self.latency, perception, bsm, spat, map_stage, bsm_rate_hz=s.timing.bsm_rate_hz,
                        spat_rate_hz=s.spat.rate_hz, map_rate_hz=s.map.rate_hz, realtime=not lockstep,
-                       trace_detections=self.traces_detections)
+                       trace_detections=self.traces_detections, sdsm=sdsm)
 
     # -- running ------------------------------------------------------------------------------------------
     def run(self) -> int:
@@ -307,6 +315,7 @@ class RsuApp:
             "detections": p.detections if p else 0,
             "confirmed_tracks": len([t for t in p.tracker.tracks if t.confirmed]) if p else 0,
             "bsm_sent": b.sent if b else 0,
+            "sdsm_sent": core.sdsm.sent if core and core.sdsm else 0,
             "spat_sent": core.spat.sent if core and core.spat else 0,
             "map_sent": core.map.sent if core and core.map else 0,
             "stage1": {"compute_ms": percentiles_ms(p.compute_s if p else []),
@@ -342,6 +351,11 @@ class RsuApp:
                               "rejected_detections": dict(p.rejected), "detector_errors": p.detector_errors}
         if b is not None:
             out["bsm_by_track"] = {b.bsm_id(tid): n for tid, n in sorted(b.sent_by_track.items())}
+        if core.sdsm is not None:
+            sd = core.sdsm
+            out["sdsm"] = {"sent": sd.sent, "objects_sent": sd.objects_sent, "objects_dropped": sd.objects_dropped,
+                           "psid": sd.psid, "source_id": sd.source_id.hex(),
+                           "compute_ms": percentiles_ms([e + g for e, g in zip(sd.encode_s, sd.sign_s)])}
         if core.spat is not None:
             sp = core.spat
             out["spat"] = {"sent": sp.sent, "statuses": sp.statuses, "suppressed_stale": sp.suppressed_stale,

@@ -40,6 +40,8 @@ MOTIONS = ("cv", "ctrv")
 SECURITY_MODES = ("signed", "unsecured")
 POLLS = ("long", "short")
 TRANSPORTS = ("zenoh", "udp", "memory")
+MESSAGE_KINDS = ("surrogate_bsm", "sdsm")   # what the RSU sends of its tracks ([v2x] messages)
+PSID_SDSM_DEFAULT = 0x90  # IEEE 1609.12 p-encodes it as 80-10, which deployments' configs write as 0x8010
 
 
 class ConfigError(ValueError):
@@ -214,6 +216,17 @@ class MapSettings:
 
 
 @dataclass
+class V2xSettings:
+    messages: list[str] = field(default_factory=lambda: ["surrogate_bsm"], metadata=_key(
+        "what the RSU sends of its broadcastable tracks each slot (timing.bsm_rate_hz): surrogate_bsm (one SAE "
+        "J2945/8 surrogate BSM per track, PSID 0x7f), sdsm (one SAE J3224 Sensor Data Sharing Message with every "
+        "track, PSID v2x.sdsm_psid), or both", choices=MESSAGE_KINDS))
+    sdsm_psid: int = field(default=PSID_SDSM_DEFAULT, metadata=_key(
+        "PSID the SDSMs are signed under; deployments differ (0x90 here; a config that writes 0x8010 usually "
+        "means 0x90 in its 1609.12 p-encoded form)", low=0, high=0xFFFFFFFF))
+
+
+@dataclass
 class HealthSettings:
     stats_every_s: float = field(default=5.0, metadata=_key(
         "wall seconds between stats lines on stderr (0: none)", low=0.0))
@@ -241,6 +254,7 @@ class Settings:
     security: SecuritySettings = field(default_factory=SecuritySettings)
     spat: SpatSettings = field(default_factory=SpatSettings)
     map: MapSettings = field(default_factory=MapSettings)
+    v2x: V2xSettings = field(default_factory=V2xSettings)
     health: HealthSettings = field(default_factory=HealthSettings)
 
     # -- derived ------------------------------------------------------------------------------------
@@ -333,8 +347,8 @@ def coerce(spec: KeySpec, value: Any, from_text: bool = False) -> Any:
             value = [v.strip() for v in value.split(",") if v.strip()]
         if not isinstance(value, list):
             raise ValueError(f"expected a list of {item}, got {type(value).__name__} {value!r}")
-        return [coerce(KeySpec(spec.section, spec.name, item, False, None, "", None, None, spec.low, spec.high,
-                               spec.positive, None), v, from_text) for v in value]
+        return [coerce(KeySpec(spec.section, spec.name, item, False, None, "", None, spec.choices, spec.low,
+                               spec.high, spec.positive, None), v, from_text) for v in value]
     if from_text and isinstance(value, str):
         if kind == "bool":
             lowered = value.strip().lower()
@@ -441,6 +455,10 @@ def build_settings(flags: dict[str, Any] | None = None, config: dict[str, Any] |
         t = settings.tracker
         problems.append(("tracker.confirm_hits", f"must be <= tracker.confirm_window ({t.confirm_window}), "
                                                  f"got {t.confirm_hits}"))
+    messages = settings.v2x.messages
+    if not messages or len(set(messages)) != len(messages):
+        problems.append(("v2x.messages", f"give each of {', '.join(MESSAGE_KINDS)} at most once, at least one, "
+                                         f"got {messages!r}"))
     if settings.detector.compile and settings.detector.backend != "torch":
         problems.append(("detector.compile", f"only the torch backend compiles its network; detector.backend is "
                                              f"{settings.detector.backend!r}"))

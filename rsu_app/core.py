@@ -94,8 +94,9 @@ class RsuCore:
     def __init__(self, latency: LatencyModel, perception: PerceptionStage | None = None,
                  bsm: BsmStage | None = None, spat=None, map_stage=None, *, t0: float | None = None,
                  bsm_rate_hz: float = 10.0, spat_rate_hz: float = 10.0, map_rate_hz: float = 1.0,
-                 realtime: bool = False, trace_detections: bool = False):
+                 realtime: bool = False, trace_detections: bool = False, sdsm=None):
         self.latency, self.perception, self.bsm, self.spat, self.map = latency, perception, bsm, spat, map_stage
+        self.sdsm = sdsm  # SdsmStage: one SDSM per slot with every track (beside or instead of the BSMs)
         self.realtime = realtime
         self.trace_detections = trace_detections
         self.records: list[dict] = []  # trace records not yet taken by the app, in detect_end order
@@ -222,7 +223,9 @@ class RsuCore:
             self.perception.apply(group)
         if self.trace_detections:
             self.records += [detection_record(r, self._bsm_id) for r in results]
-        if self._bsm_start is None and self.bsm is not None:
+        if self.sdsm is not None:
+            self.sdsm.observe(results)
+        if self._bsm_start is None and (self.bsm is not None or self.sdsm is not None):
             self._bsm_start = when
             self._push(when, BSM, (when, 0))
 
@@ -238,4 +241,8 @@ class RsuCore:
         states = self.perception.broadcastable(tracker.predict(max(t, tracker.t)))
         self.tracks_seen.update(s.id for s in states)
         sequential = self.latency.policy != "fixed"
-        return self.bsm.send(states, t, self.perception.track_stamps, sequential)
+        out = [] if self.bsm is None else self.bsm.send(states, t, self.perception.track_stamps, sequential)
+        if self.sdsm is not None:
+            start = out[-1].t_sim if out and sequential else t  # one CPU: after the slot's BSMs
+            out += self.sdsm.send(states, t, self.perception.track_stamps, start)
+        return out

@@ -43,7 +43,7 @@ class Envelope:
             raise ConfigError([("security.credential", f"certificate {credential!r} may not sign {names} (it "
                                                        f"permits {', '.join(hex(p) for p in sorted(permitted))}); "
                                                        f"issue it with `v2i pki init DIR --station "
-                                                       f"{credential}:0x7f,0x82`")])
+                                                       f"{credential}:{','.join(hex(p) for p in psids)}`")])
         return cls(Signer(credentials, certificate_interval_s))
 
     def wrap(self, payload: bytes, psid: int, generation_time_us: int) -> bytes:

@@ -51,10 +51,10 @@ def test_decode_unwraps_1609dot2(capsys):
 
 
 def test_unknown_id_prints_the_id_and_octets(capsys):
-    sdsm = next(v for v in VECTORS if v["message"].startswith("SDSM"))
-    code, out, _ = _decode(capsys, sdsm["hex"])
+    other = next(v for v in VECTORS if v["message"].startswith("other (labelled PSM"))
+    code, out, _ = _decode(capsys, other["hex"])
     document = json.loads(out)
-    assert code == 0 and document["messageId"] == 41 and document["type"] is None and "octets" in document["value"]
+    assert code == 0 and document["messageId"] == 285 and document["type"] is None and "octets" in document["value"]
 
 
 @pytest.mark.parametrize("text,reason", [

@@ -12,8 +12,11 @@ from bridges.j2735.signal_request import (AccessPoint, IntersectionStatus, Reque
                                           Requestor, RequestorType, SignalRequest, Srm, Ssm)
 from bridges.j2735.spat import (AdvisorySpeed, IntersectionSignals, ManeuverAssist, Movement,  # noqa: E402
                                 MovementEvent, Spat)
+from bridges.j2735.sdsm import (Acceleration, DateTime, DetectedObject, ObstacleDetails, Sdsm,  # noqa: E402
+                                VehicleDetails, VruDetails)
 
 __all__ += ["ComputedLane", "Connection", "IntersectionGeometry", "Lane", "MapData", "Node",
             "AccessPoint", "IntersectionStatus", "Requester", "RequestStatus", "Requestor", "RequestorType",
             "SignalRequest", "Srm", "Ssm",
-            "AdvisorySpeed", "IntersectionSignals", "ManeuverAssist", "Movement", "MovementEvent", "Spat"]
+            "AdvisorySpeed", "IntersectionSignals", "ManeuverAssist", "Movement", "MovementEvent", "Spat",
+            "Acceleration", "DateTime", "DetectedObject", "ObstacleDetails", "Sdsm", "VehicleDetails", "VruDetails"]

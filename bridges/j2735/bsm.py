@@ -19,6 +19,7 @@ from typing import Any
 from bridges.j2735 import scales
 from bridges.j2735.codec import J2735Codec, J2735Error, default_codec
 from bridges.j2735.editions import SSP_MEMBERS, Edition, edition as edition_named
+from bridges.j2735.typed import Framed
 
 TRANSMISSION_STATES = ("neutral", "park", "forwardGears", "reverseGears",
                        "reserved1", "reserved2", "reserved3", "unavailable")
@@ -41,8 +42,10 @@ class EmergencyInfo:
 
 
 @dataclass
-class Bsm:
+class Bsm(Framed):
     """BSM core data (part I) in SI units; None where J2735 says 'unavailable'."""
+
+    MESSAGE_ID, WHAT = 20, "a BSM"
 
     temporary_id: bytes
     msg_count: int = 0
@@ -150,18 +153,8 @@ class Bsm:
             regional=message.get("regional"),
         )
 
-    # -- wire ---------------------------------------------------------------------
-    def encode(self, codec: J2735Codec | None = None) -> bytes:
-        """The UPER MessageFrame (messageId 20), in the codec's edition."""
-        codec = codec or default_codec()
-        return codec.encode(20, self.to_asn1(codec.edition))
-
-    @classmethod
-    def decode(cls, data: bytes, codec: J2735Codec | None = None) -> "Bsm":
-        frame = (codec or default_codec()).decode(data)
-        if frame.message_id != 20:
-            raise J2735Error(f"messageId {frame.message_id} is not a BSM (20)")
-        return cls.from_asn1(frame.message)
+    def _to_wire(self, codec: J2735Codec) -> dict[str, Any]:
+        return self.to_asn1(codec.edition)
 
 
 _TYPED_EMERGENCY_FIELDS = {"sirenUse", "lightsUse", "multi", "responseType", *SSP_MEMBERS}

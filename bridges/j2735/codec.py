@@ -40,14 +40,20 @@ MESSAGE_TYPES: dict[int, str] = {
     20: "BasicSafetyMessage",
     29: "SignalRequestMessage",
     30: "SignalStatusMessage",
+    41: "SensorDataSharingMessage",   # SAE J3224 (SDSM)
 }
 MESSAGE_IDS: dict[str, int] = {name: mid for mid, name in MESSAGE_TYPES.items()}
+# Ids whose type a user's licensed files may lack (the SDSM entered J2735 after 2016): decoded when the
+# ASN.1 has the type, else carried as octets like any unknown id.
+OPTIONAL_MESSAGE_IDS = frozenset({41})
 # PartII-Id -> part II content type
 PART_II_TYPES: dict[int, str] = {0: "VehicleSafetyExtensions", 1: "SpecialVehicleExtensions"}
 PART_II_IDS: dict[str, int] = {name: pid for pid, name in PART_II_TYPES.items()}
 
 MAX_FRAME_BYTES = 65535  # larger than any J2735 message over the air; bounds the work per frame
-REQUIRED_TYPES = ("MessageFrame", *MESSAGE_TYPES.values(), *PART_II_TYPES.values())
+REQUIRED_TYPES = ("MessageFrame", *(t for i, t in MESSAGE_TYPES.items() if i not in OPTIONAL_MESSAGE_IDS),
+                  *PART_II_TYPES.values())
+OPTIONAL_TYPES = tuple(MESSAGE_TYPES[i] for i in sorted(OPTIONAL_MESSAGE_IDS))
 
 
 @dataclass(frozen=True)
@@ -127,6 +133,10 @@ def _compile_parsed(parsed: dict[str, Any], sources, notes: tuple[str, ...]) -> 
             types[name] = found
     if missing:
         raise J2735Error(f"ASN.1 in {[p.name for p in sources]} lacks types {missing}")
+    for name in OPTIONAL_TYPES:
+        found = _resolve(spec.modules, imports, name)
+        if found is not None:
+            types[name] = found
     return _Compiled(types, spec, notes)
 
 
@@ -202,6 +212,8 @@ class J2735Codec:
                 raise J2735Error(f"edition {asked.name} asked for, but the ASN.1 in "
                                  f"{[p.name for p in self.sources]} is {self.edition.describe()}")
         self.spec, self._types, self.asn1_notes = compiled.spec, compiled.types, compiled.notes
+        # the ids this codec decodes and encodes: every known id whose type its ASN.1 has
+        self.message_types = {mid: name for mid, name in MESSAGE_TYPES.items() if name in self._types}
 
     # -- decoding -------------------------------------------------------------
     def decode(self, data: bytes) -> Frame:
@@ -210,7 +222,7 @@ class J2735Codec:
         frame = self._decode_type("MessageFrame", data)
         message_id, value = frame["messageId"], frame["value"]
         length = self._frame_length(data, frame)
-        type_name = MESSAGE_TYPES.get(message_id)
+        type_name = self.message_types.get(message_id)
         message = None
         if type_name is not None:
             message = self._decode_type(type_name, value, f"{type_name} (messageId {message_id})")
@@ -270,9 +282,12 @@ class J2735Codec:
             if message_id not in MESSAGE_IDS:
                 raise J2735Error(f"unknown message type {message_id!r}; known: {sorted(MESSAGE_IDS)}")
             message_id = MESSAGE_IDS[message_id]
-        type_name = MESSAGE_TYPES.get(message_id)
+        type_name = self.message_types.get(message_id)
         if type_name is None:
-            raise J2735Error(f"messageId {message_id} is not one this codec encodes ({sorted(MESSAGE_TYPES)})")
+            lacking = f" (its ASN.1 {[p.name for p in self.sources]} has no {MESSAGE_TYPES[message_id]})" \
+                if message_id in MESSAGE_TYPES else ""
+            raise J2735Error(f"messageId {message_id} is not one this codec encodes "
+                             f"({sorted(self.message_types)}){lacking}")
         value = self.encode_message(type_name, message)
         return self._encode_type("MessageFrame", {"messageId": message_id, "value": value})
 

@@ -6,7 +6,7 @@ guesses where a frame starts; the caller says how to find it:
 
 * `skip:N` the frame starts after N header bytes;
 * `scan`   the first offset where a MessageFrame of a type the codec knows
-  (MAP, SPaT, BSM, SRM, SSM) starts and decodes, inner message included, to
+  (MAP, SPaT, BSM, SRM, SSM, SDSM) starts and decodes, inner message included, to
   exactly the end of the packet. Header bytes often happen to read as a frame
   of some unknown id, so unknown ids are never taken, and a frame followed by
   anything (a signature) is not either: give `skip:N` for those.
@@ -19,7 +19,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from bridges.j2735.codec import MESSAGE_TYPES, Frame, J2735Codec, J2735Error, default_codec
+from bridges.j2735.codec import Frame, J2735Codec, J2735Error, default_codec
 
 HEADER_FORMS = ("skip:N", "scan")
 _SKIP = re.compile(r"skip:(\d+)")
@@ -65,7 +65,7 @@ def find_message_frame(data: bytes, header: str, codec: J2735Codec | None = None
                              f"before the packet does")
         return FoundFrame(skip, frame)
     for offset in range(len(data) - 2):
-        if data[offset] & 0x80 or int.from_bytes(data[offset:offset + 2], "big") not in MESSAGE_TYPES:
+        if data[offset] & 0x80 or int.from_bytes(data[offset:offset + 2], "big") not in codec.message_types:
             continue  # not the start of a root MessageFrame of a known id (extension bit 0, 15-bit id)
         try:
             frame = codec.decode(data[offset:])
@@ -73,6 +73,6 @@ def find_message_frame(data: bytes, header: str, codec: J2735Codec | None = None
             continue
         if frame.length == len(data) - offset:
             return FoundFrame(offset, frame)
-    raise J2735Error(f"scan: no MessageFrame of a known type ({', '.join(map(str, sorted(MESSAGE_TYPES)))}) "
+    raise J2735Error(f"scan: no MessageFrame of a known type ({', '.join(map(str, sorted(codec.message_types)))}) "
                      f"ends the {len(data)}-byte packet; if a signature follows the frame, give skip:N to "
                      f"the 1609.2 envelope")

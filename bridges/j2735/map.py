@@ -50,8 +50,9 @@ from dataclasses import dataclass, field
 from typing import Any, Iterable
 
 from bridges.j2735 import scales
-from bridges.j2735.codec import J2735Codec, J2735Error, default_codec
+from bridges.j2735.codec import J2735Error
 from bridges.j2735.fields import finite as _finite, from_wire as _from_wire, wire as _scaled
+from bridges.j2735.typed import Framed
 
 MESSAGE_ID = 18
 
@@ -326,7 +327,11 @@ class IntersectionGeometry:
 
 
 @dataclass
-class MapData:
+class MapData(Framed):
+    """MapData: the geometry of one or more intersections (lanes, nodes, connections)."""
+
+    MESSAGE_ID, WHAT = MESSAGE_ID, "a MAP"
+
     intersections: list[IntersectionGeometry]
     revision: int = 0                  # msgIssueRevision (MsgCount 0..127): bump when the map changes
     moy: int | None = None             # minute of the year of the message
@@ -358,17 +363,6 @@ class MapData:
         return cls([_intersection_from_asn1(i) for i in message.get("intersections", ())],
                    revision=message["msgIssueRevision"], moy=message.get("timeStamp"),
                    layer_type=message.get("layerType"), layer_id=message.get("layerID"), other=other or None)
-
-    def encode(self, codec: J2735Codec | None = None) -> bytes:
-        """The UPER MessageFrame (messageId 18); J2735Error naming the field for a value it cannot carry."""
-        return (codec or default_codec()).encode(MESSAGE_ID, self.to_asn1())
-
-    @classmethod
-    def decode(cls, data: bytes, codec: J2735Codec | None = None) -> "MapData":
-        frame = (codec or default_codec()).decode(data)
-        if frame.message_id != MESSAGE_ID:
-            raise J2735Error(f"messageId {frame.message_id} is not a MAP ({MESSAGE_ID})")
-        return cls.from_asn1(frame.message)
 
 
 # -- to asn1 -------------------------------------------------------------------------------------------

@@ -32,8 +32,9 @@ from typing import Any
 
 from bridges.j2735 import fields as f
 from bridges.j2735 import scales
-from bridges.j2735.codec import J2735Codec, J2735Error, default_codec
+from bridges.j2735.codec import J2735Error
 from bridges.j2735.scales import Scale
+from bridges.j2735.typed import Framed, Kept
 
 SRM_ID, SSM_ID = 29, 30
 DSECOND = Scale("DSecond", "s", 0.001, 0, 65535)  # ms within the minute; 60000..60999 leap second, 65535 unavailable
@@ -109,7 +110,7 @@ def _minute_second_duration(out: dict[str, Any], minute: int | None, second: flo
 
 
 @dataclass
-class RequestorType:
+class RequestorType(Kept):
     """What kind of vehicle asks (RequestorType): its role and, optionally, finer classes."""
 
     role: str = "basicVehicle"              # BasicVehicleRole name
@@ -120,7 +121,7 @@ class RequestorType:
     regional: dict[str, Any] | None = None  # one RegionalExtension, verbatim
     other: dict[str, Any] | None = None
 
-    def _typed(self, where: str) -> dict[str, Any]:
+    def _typed(self, where: str = "type") -> dict[str, Any]:
         out: dict[str, Any] = {"role": f.name(self.role, ROLES, f"{where}: role")}
         if self.subrole is not None:
             out["subrole"] = f.name(self.subrole, SUBROLES, f"{where}: subrole")
@@ -134,20 +135,17 @@ class RequestorType:
             out["regional"] = self.regional
         return out
 
-    def to_asn1(self, where: str = "type") -> dict[str, Any]:
-        return f.fill(self._typed(where), self.other)
 
     @classmethod
     def from_asn1(cls, v: dict[str, Any]) -> "RequestorType":
         t = cls(role=v["role"], subrole=v.get("subrole"), importance=v.get("request"), iso3883=v.get("iso3883"),
                 hpms_type=v.get("hpmsType"), regional=v.get("regional"))
-        t.other = f.residue(v, t._typed("type"))
-        return t
+        return t._keep(v)
 
 
 # -- SRM --------------------------------------------------------------------------------------------------
 @dataclass
-class Requestor:
+class Requestor(Kept):
     """The vehicle that sends the SRM (RequestorDescription)."""
 
     vehicle_id: int | bytes                  # StationID (int) or TemporaryID (4 bytes)
@@ -204,8 +202,6 @@ class Requestor:
             out["regional"] = self.regional
         return out
 
-    def to_asn1(self) -> dict[str, Any]:
-        return f.fill(self._typed(), self.other)
 
     @classmethod
     def from_asn1(cls, v: dict[str, Any]) -> "Requestor":
@@ -224,12 +220,11 @@ class Requestor:
                 transit_occupancy=v.get("transitOccupancy"),
                 transit_schedule=None if "transitSchedule" not in v else v["transitSchedule"] * TRANSIT_SCHEDULE_STEP_S,
                 regional=v.get("regional"))
-        r.other = f.residue(v, r._typed())
-        return r
+        return r._keep(v)
 
 
 @dataclass
-class SignalRequest:
+class SignalRequest(Kept):
     """One request (SignalRequestPackage): priority at an intersection, from `inbound` to `outbound`."""
 
     intersection_id: int
@@ -282,8 +277,6 @@ class SignalRequest:
             raise J2735Error(f"{what}: an AccessPoint is required, got {point!r}")
         return point.to_asn1(what)
 
-    def to_asn1(self, where: str = "request") -> dict[str, Any]:
-        return f.fill(self._typed(where), self.other)
 
     @classmethod
     def from_asn1(cls, v: dict[str, Any]) -> "SignalRequest":
@@ -294,13 +287,14 @@ class SignalRequest:
                   eta_minute=v.get("minute"), eta_second=f.from_wire(DSECOND, v.get("second")),
                   duration=f.from_wire(DSECOND, v.get("duration")), regional=r.get("regional"),
                   package_regional=v.get("regional"))
-        req.other = f.residue(v, req._typed())
-        return req
+        return req._keep(v)
 
 
 @dataclass
-class Srm:
+class Srm(Kept, Framed):
     """SignalRequestMessage: one requestor, its requests (none: it only announces itself)."""
+
+    MESSAGE_ID, WHAT = SRM_ID, "an SRM"
 
     requestor: Requestor
     requests: list[SignalRequest] = field(default_factory=list)
@@ -328,29 +322,17 @@ class Srm:
             out["regional"] = self.regional
         return out
 
-    def to_asn1(self) -> dict[str, Any]:
-        return f.fill(self._typed(), self.other)
-
-    def encode(self, codec: J2735Codec | None = None) -> bytes:
-        """The UPER MessageFrame (messageId 29); J2735Error naming the field for a value it cannot carry."""
-        return (codec or default_codec()).encode(SRM_ID, self.to_asn1())
-
     @classmethod
     def from_asn1(cls, m: dict[str, Any]) -> "Srm":
         srm = cls(Requestor.from_asn1(m["requestor"]), [SignalRequest.from_asn1(r) for r in m.get("requests", ())],
                   second=f.from_wire(DSECOND, m["second"]), moy=m.get("timeStamp"),
                   sequence_number=m.get("sequenceNumber"), regional=m.get("regional"))
-        srm.other = f.residue(m, srm._typed())
-        return srm
-
-    @classmethod
-    def decode(cls, data: bytes, codec: J2735Codec | None = None) -> "Srm":
-        return cls.from_asn1(_decode(data, SRM_ID, "an SRM", codec))
+        return srm._keep(m)
 
 
 # -- SSM --------------------------------------------------------------------------------------------------
 @dataclass
-class Requester:
+class Requester(Kept):
     """Whose request a status answers (SignalRequesterInfo): the SRM's vehicle id, request id and sequence."""
 
     vehicle_id: int | bytes
@@ -370,19 +352,16 @@ class Requester:
             out["typeData"] = self.type.to_asn1(f"{where}: type")
         return out
 
-    def to_asn1(self, where: str = "requester") -> dict[str, Any]:
-        return f.fill(self._typed(where), self.other)
 
     @classmethod
     def from_asn1(cls, v: dict[str, Any]) -> "Requester":
         r = cls(vehicle_id=v["id"][1], request_id=v["request"], sequence_number=v["sequenceNumber"],
                 role=v.get("role"), type=RequestorType.from_asn1(v["typeData"]) if "typeData" in v else None)
-        r.other = f.residue(v, r._typed())
-        return r
+        return r._keep(v)
 
 
 @dataclass
-class RequestStatus:
+class RequestStatus(Kept):
     """The intersection's answer to one request (SignalStatusPackage)."""
 
     inbound: AccessPoint
@@ -410,8 +389,6 @@ class RequestStatus:
             out["regional"] = self.regional
         return out
 
-    def to_asn1(self, where: str = "status") -> dict[str, Any]:
-        return f.fill(self._typed(where), self.other)
 
     @classmethod
     def from_asn1(cls, v: dict[str, Any]) -> "RequestStatus":
@@ -420,12 +397,11 @@ class RequestStatus:
                 outbound=AccessPoint.from_asn1(v["outboundOn"]) if "outboundOn" in v else None,
                 eta_minute=v.get("minute"), eta_second=f.from_wire(DSECOND, v.get("second")),
                 duration=f.from_wire(DSECOND, v.get("duration")), regional=v.get("regional"))
-        s.other = f.residue(v, s._typed())
-        return s
+        return s._keep(v)
 
 
 @dataclass
-class IntersectionStatus:
+class IntersectionStatus(Kept):
     """One intersection's answers (SignalStatus)."""
 
     intersection_id: int
@@ -447,20 +423,19 @@ class IntersectionStatus:
             out["regional"] = self.regional
         return out
 
-    def to_asn1(self) -> dict[str, Any]:
-        return f.fill(self._typed(), self.other)
 
     @classmethod
     def from_asn1(cls, v: dict[str, Any]) -> "IntersectionStatus":
         s = cls(intersection_id=v["id"]["id"], region=v["id"].get("region"), sequence_number=v["sequenceNumber"],
                 requests=[RequestStatus.from_asn1(p) for p in v["sigStatus"]], regional=v.get("regional"))
-        s.other = f.residue(v, s._typed())
-        return s
+        return s._keep(v)
 
 
 @dataclass
-class Ssm:
+class Ssm(Kept, Framed):
     """SignalStatusMessage: the status of the requests at one or more intersections."""
+
+    MESSAGE_ID, WHAT = SSM_ID, "an SSM"
 
     status: list[IntersectionStatus]
     second: float = 0.0                  # s within the minute of the message (DSecond)
@@ -483,27 +458,8 @@ class Ssm:
             out["regional"] = self.regional
         return out
 
-    def to_asn1(self) -> dict[str, Any]:
-        return f.fill(self._typed(), self.other)
-
-    def encode(self, codec: J2735Codec | None = None) -> bytes:
-        """The UPER MessageFrame (messageId 30); J2735Error naming the field for a value it cannot carry."""
-        return (codec or default_codec()).encode(SSM_ID, self.to_asn1())
-
     @classmethod
     def from_asn1(cls, m: dict[str, Any]) -> "Ssm":
         ssm = cls([IntersectionStatus.from_asn1(s) for s in m["status"]], second=f.from_wire(DSECOND, m["second"]),
                   moy=m.get("timeStamp"), sequence_number=m.get("sequenceNumber"), regional=m.get("regional"))
-        ssm.other = f.residue(m, ssm._typed())
-        return ssm
-
-    @classmethod
-    def decode(cls, data: bytes, codec: J2735Codec | None = None) -> "Ssm":
-        return cls.from_asn1(_decode(data, SSM_ID, "an SSM", codec))
-
-
-def _decode(data: bytes, message_id: int, what: str, codec: J2735Codec | None) -> dict[str, Any]:
-    frame = (codec or default_codec()).decode(data)
-    if frame.message_id != message_id:
-        raise J2735Error(f"messageId {frame.message_id} is not {what} ({message_id})")
-    return frame.message
+        return ssm._keep(m)

@@ -40,6 +40,7 @@ from bridges.j2735 import scales
 from bridges.j2735.codec import J2735Codec, J2735Error, default_codec
 from bridges.j2735.editions import Edition, edition as edition_named
 from bridges.j2735.scales import Scale
+from bridges.j2735.typed import Framed, Kept
 
 MESSAGE_ID = 19
 PHASE_STATES = ("unavailable", "dark", "stop-Then-Proceed", "stop-And-Remain", "pre-Movement",
@@ -81,7 +82,7 @@ def status_bits(*flags: str) -> tuple[bytes, int]:
 
 # -- the typed message ----------------------------------------------------------------------------------
 @dataclass
-class AdvisorySpeed:
+class AdvisorySpeed(Kept):
     """A speed advice for a movement event (e.g. a green wave)."""
 
     kind: str = "none"                     # AdvisorySpeedType name
@@ -92,7 +93,7 @@ class AdvisorySpeed:
     regional: list[dict[str, Any]] | None = None
     other: dict[str, Any] | None = None    # kept verbatim (see bridges.j2735.fields)
 
-    def _typed(self, where: str) -> dict[str, Any]:
+    def _typed(self, where: str = "advisory speed") -> dict[str, Any]:
         out: dict[str, Any] = {"type": f.name(self.kind, ADVISORY_SPEED_TYPES, f"{where}: kind")}
         if self.speed is not None:
             out["speed"] = f.wire(SPEED_ADVICE, self.speed, f"{where}: speed")
@@ -106,16 +107,12 @@ class AdvisorySpeed:
             out["regional"] = self.regional
         return out
 
-    def to_asn1(self, where: str = "advisory speed") -> dict[str, Any]:
-        return f.fill(self._typed(where), self.other)
-
     @classmethod
     def from_asn1(cls, v: dict[str, Any]) -> "AdvisorySpeed":
         speed = cls(kind=v["type"], speed=f.from_wire(SPEED_ADVICE, v.get("speed")), confidence=v.get("confidence"),
                     distance=f.from_wire(ZONE_LENGTH, v.get("distance")), restriction_class=v.get("class"),
                     regional=v.get("regional"))
-        speed.other = f.residue(v, speed._typed("advisory speed"))
-        return speed
+        return speed._keep(v)
 
 
 @dataclass
@@ -176,7 +173,7 @@ class MovementEvent:
 
 
 @dataclass
-class ManeuverAssist:
+class ManeuverAssist(Kept):
     """ConnectionManeuverAssist: queue and storage on one MAP connection (`connection_id`)."""
 
     connection_id: int
@@ -187,7 +184,7 @@ class ManeuverAssist:
     regional: list[dict[str, Any]] | None = None
     other: dict[str, Any] | None = None
 
-    def _typed(self, where: str) -> dict[str, Any]:
+    def _typed(self, where: str = "maneuver assist") -> dict[str, Any]:
         where = f"{where}: connection {self.connection_id}"
         out: dict[str, Any] = {"connectionID": f.integer(self.connection_id, 0, 255, f"{where}: connection_id")}
         if self.queue_length is not None:
@@ -204,17 +201,13 @@ class ManeuverAssist:
             out["regional"] = self.regional
         return out
 
-    def to_asn1(self, where: str = "maneuver assist") -> dict[str, Any]:
-        return f.fill(self._typed(where), self.other)
-
     @classmethod
     def from_asn1(cls, v: dict[str, Any]) -> "ManeuverAssist":
         assist = cls(connection_id=v["connectionID"], queue_length=f.from_wire(ZONE_LENGTH, v.get("queueLength")),
                      available_storage_length=f.from_wire(ZONE_LENGTH, v.get("availableStorageLength")),
                      wait_on_stop=v.get("waitOnStop"), ped_bicycle_detect=v.get("pedBicycleDetect"),
                      regional=v.get("regional"))
-        assist.other = f.residue(v, assist._typed("maneuver assist"))
-        return assist
+        return assist._keep(v)
 
 
 def _children(received: dict[str, Any] | None, key: str) -> list[dict[str, Any]] | None:
@@ -384,7 +377,11 @@ class IntersectionSignals:
 
 
 @dataclass
-class Spat:
+class Spat(Framed):
+    """SPAT: the signal state of one or more intersections; time marks in the codec's edition."""
+
+    MESSAGE_ID, WHAT = MESSAGE_ID, "a SPaT"
+
     intersections: list[IntersectionSignals]
     moy: int | None = None               # SPAT.timeStamp: minute of the year
     name: str | None = None
@@ -409,11 +406,8 @@ class Spat:
         """asn1tools values, time marks in `edition`'s codes (None: the default codec's edition)."""
         return f.fill(self._typed(_edition(edition)), self.other)
 
-    def encode(self, codec: J2735Codec | None = None) -> bytes:
-        """The UPER MessageFrame (messageId 19) in the codec's edition; J2735Error naming the field for a value
-        it cannot carry."""
-        codec = codec or default_codec()
-        return codec.encode(MESSAGE_ID, self.to_asn1(codec.edition))
+    def _to_wire(self, codec: J2735Codec) -> dict[str, Any]:
+        return self.to_asn1(codec.edition)
 
     @classmethod
     def from_asn1(cls, message: dict[str, Any], edition: str | Edition | None = None) -> "Spat":
@@ -425,9 +419,5 @@ class Spat:
         return spat
 
     @classmethod
-    def decode(cls, data: bytes, codec: J2735Codec | None = None) -> "Spat":
-        codec = codec or default_codec()
-        frame = codec.decode(data)
-        if frame.message_id != MESSAGE_ID:
-            raise J2735Error(f"messageId {frame.message_id} is not a SPaT ({MESSAGE_ID})")
-        return cls.from_asn1(frame.message, codec.edition)
+    def _from_wire(cls, message: dict[str, Any], codec: J2735Codec) -> "Spat":
+        return cls.from_asn1(message, codec.edition)
