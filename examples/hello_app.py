@@ -20,7 +20,7 @@ from bridges.j2735 import J2735Error, default_codec
 from bridges.j2735.bsm import Bsm
 from bridges.security import PSID_BSM, SecurityError, Signer, VerificationError, load_credentials, time64_us
 from bridges.security.trust import load_trust_store
-from bridges.sensor_stream import GNSS_KEY, decode_fix
+from bridges.sensor_stream import GNSS_KEY, SensorStreamError, decode_fix
 from bridges.timesync.exits import EXIT_CONFIG, EXIT_OK, SESSION_ERRORS, session_end
 from bridges.v2x import RECEIVE, SEND, rx_key, stamp_ns, tx_key, unix_time
 
@@ -48,21 +48,27 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_CONFIG
     s = AppSession(a.name, "hello_app", listen=[rx_key(a.name), GNSS_KEY.format(a.vehicle)],
                    publishes=[tx_key(a.name)])
-    code, fix, sent, heard, rejected, due = EXIT_OK, None, 0, Counter(), Counter(), 0.0
+    code, fix, sent, bad_gnss, heard, rejected, due = EXIT_OK, None, 0, 0, Counter(), Counter(), 0.0
     try:
         s.open()
         for step in s.steps():
             for msg in step.heard:
-                if msg.key.startswith("gnss/"):
-                    fix = decode_fix(msg.payload)
-                    continue
-                try:  # verify at the frame's arrival time, then decode: anything else is counted by reason
+                try:  # a GNSS fix of its vehicle, or a frame off the air: verified at its arrival time, decoded
+                    if msg.key.startswith("gnss/"):
+                        fix = decode_fix(msg.payload)
+                        continue
                     v = verifier.verify(msg.payload, time64_us(unix_time(msg.t_sim, s.epoch)))
-                    if v.psid != PSID_BSM:
-                        raise J2735Error("psid-mismatch")
-                    bsm = Bsm.decode(v.payload)
-                except (VerificationError, J2735Error) as exc:
-                    rejected[getattr(exc.reason, "value", exc.reason)] += 1
+                    bsm = Bsm.decode(v.payload) if v.psid == PSID_BSM else None  # J2735Error: not a BSM
+                    if bsm is None or bsm.latitude is None:
+                        raise J2735Error("psid-mismatch" if bsm is None else "no-position")
+                except VerificationError as exc:  # bad-signature, replayed, untrusted-signer, ...: counted
+                    rejected[exc.reason.value] += 1
+                    continue
+                except J2735Error as exc:
+                    rejected[exc.reason if exc.reason in ("psid-mismatch", "no-position") else "undecodable"] += 1
+                    continue
+                except SensorStreamError:
+                    bad_gnss += 1
                     continue
                 heard[v.signer] += 1
                 x, y, _ = s.origin.to_local(bsm.latitude, bsm.longitude)
@@ -80,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         s.close()
         print(json.dumps({"app": "hello", "name": a.name, "station": a.name, "mode": s.mode, "ticks": s.ticks,
-                          "sent": sent, "heard": dict(heard), "published": s.published,
+                          "sent": sent, "heard": dict(heard), "bad_gnss": bad_gnss,
                           "obu": {"accepted": sum(heard.values()), "rejected": dict(rejected)}}), flush=True)
     return code
 
