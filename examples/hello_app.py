@@ -40,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--keys", default="keys", help="the scenario's PKI folder (v2i pki init)")
     p.add_argument("--rate-hz", type=float, default=1.0, help="BSMs per second")
     a = p.parse_args(argv)
+    if not a.rate_hz > 0:
+        p.error(f"--rate-hz must be > 0, got {a.rate_hz}")
     try:  # the keys first (a bad folder is a config error) and the codec (built once, seconds) before joining
         signer, verifier = Signer(load_credentials(a.keys, a.name)), load_trust_store(a.keys).verifier()
         default_codec()
