@@ -13,6 +13,7 @@ Rules (DESIGN §1, issue 14):
   may import ``bridges.<name>`` as the working-tree fallback of that bundled copy, i.e. only when
   the same file also imports ``fmus._bundled.<name>``; such a bundled ``bridges/<name>.py`` imports
   only the standard library (the FMU carries that one file and nothing else of the project);
+* ``examples/`` (the guide's minimal app) imports only ``bridges`` of the project, as a new app would;
 * ``evaluation/`` (like ``benchmarks/`` and ``tests/``) may import everything;
 * no import cycle between the project's packages, a subpackage counted as one node
   (``master.world`` is one node, the module ``master.cli`` another, ``bridges.j2735`` one).
@@ -74,6 +75,9 @@ RULES: dict[str, tuple[frozenset[str] | None, str]] = {
     "evaluation": (None, "evaluation/ may import everything"),
     "attacker": (frozenset({"attacker", "bridges"}),
                  "attacker/ imports only bridges of the project (a participant like the apps)"),
+    "examples": (frozenset({"examples", "bridges"}),
+                 "examples/ import only bridges of the project: the guide's app is built the way a new app is "
+                 "(docs/writing-an-app.md)"),
 }
 BUNDLED_RULE = "a bridges module bundled into an FMU (fmus._bundled.<name>) imports only the standard library"
 BUNDLED_PACKAGE = "fmus._bundled"  # exists only inside a built FMU (fmus/builder.py)

@@ -9,7 +9,7 @@ and takes each command line that starts with ``v2i ``:
   own parser (``master.cli.build_parser()``); a refusal names the page and line
   (``docs/sweeps.md:12``);
 * the cheap ones run for real, with bash, in a temporary folder laid out like
-  the repository root (``scenarios/`` linked in, the built FMUs found through
+  the repository root (``scenarios/`` and ``examples/`` linked in, the built FMUs found through
   ``V2I_FMU_DIR``), block by block in page order so that a line can read what
   the line before it wrote (``bsm.json``); each must exit 0. Long ones
   (datasets, training, evaluation on datasets, wall-clock-paced runs) are only
@@ -184,6 +184,8 @@ def run_problems(block: list[Command], root: Path, workdir: Path, fmu_dir: Path)
         return 0, [f"no `v2i` script beside {sys.executable}: the README's `. .venv/bin/activate` would not "
                    "give the command (is the project installed?)"]
     (workdir / "scenarios").symlink_to(root / "scenarios", target_is_directory=True)
+    if (root / "examples").is_dir():  # docs/writing-an-app.md runs the guide's example scenario
+        (workdir / "examples").symlink_to(root / "examples", target_is_directory=True)
     env = {**os.environ, "PATH": f"{v2i.parent}{os.pathsep}{os.environ.get('PATH', '')}",
            "V2I_FMU_DIR": str(fmu_dir)}
     ran, problems = 0, []
