@@ -136,11 +136,13 @@ class Coordinator:
             self._waiting = {n for n, s in self.members.items() if s.active and k % s.spec.sync_every == 0}
             if not self._waiting:
                 return
-            payload = m.encode(m.Tick(k, t, step))
-            self.ticks += 1
-            started = time.monotonic()
-            last_send = started
-            self.bus.publish(m.TICK, payload, t)  # under the lock, like the resends: never after close()
+        payload = m.encode(m.Tick(k, t, step))
+        self.ticks += 1
+        started = time.monotonic()
+        last_send = started
+        if not self._publish(m.TICK, payload, t):
+            return
+        with self._cond:
             while True:
                 self._raise_fatal()  # before the exit test: a lost participant leaves the waiting set
                 if not self._waiting or self._closed:
@@ -172,14 +174,24 @@ class Coordinator:
             if self._closed:
                 return
             self._k, self._t = k, t
-            self.ticks += 1
-            self.bus.publish(m.TICK, m.encode(m.Tick(k, t, step)), t)
+        self.ticks += 1
+        self._publish(m.TICK, m.encode(m.Tick(k, t, step)), t)
 
     def publish_mapping(self, t_sim0: float, wall0_ns: int, rtf: float) -> None:
-        mapping = m.encode(m.Mapping(t_sim0, wall0_ns, rtf))  # a bad mapping raises here, closed or not
-        with self._cond:
-            if not self._closed:
-                self.bus.publish(m.MAPPING, mapping, t_sim0)
+        self._publish(m.MAPPING, m.encode(m.Mapping(t_sim0, wall0_ns, rtf)), t_sim0)
+
+    def _publish(self, key: str, payload: bytes, t: float) -> bool:
+        """Publish unless closed; False when closed (before, or while publishing: the bus closed under us).
+        Outside the lock, as before: the transport's threads take it to deliver what they receive."""
+        if self._closed:
+            return False
+        try:
+            self.bus.publish(key, payload, t)
+        except Exception:
+            if self._closed:  # lost the race with close(): its owner closes the bus next, nothing to tell
+                return False
+            raise
+        return True
 
     def check(self) -> None:
         """Raise for a required participant that left or fell silent (realtime runs call this each step)."""
