@@ -181,6 +181,17 @@ class PlannerSection:
                                       "within 45 degrees of it (map-based prediction)")
     motion: str = _f("ctrv", "object prediction: cv (constant velocity) or ctrv (constant turn rate)",
                      choices=("cv", "ctrv"))
+    merge_gap_s: float = _f(1.0, "going on through a conflict zone (instead of yielding) is safe when the object, "
+                                 "holding its speed, reaches every station the ego occupies through the zone and "
+                                 "the merge at least this long after the ego has left it, s", low=0.0)
+    merge_gap_m: float = _f(5.0, "... and at least this many metres behind it (at the object's speed), m", low=0.0)
+    merge_heading_deg: float = _f(15.0, "the merge into an object's lane ends where the ego's path heads within "
+                                        "this of the object's heading (plus one vehicle length); beyond, the object "
+                                        "follows the ego", positive=True, high=90.0)
+    escape_speed_max: float = _f(16.667, "ahead of a faster vehicle in its lane (after merging ahead of it, or "
+                                         "with one closing from behind) the ego speeds up at vehicle.max_accel to "
+                                         "its speed, up to this (the road's speed limit; 60 km/h), m/s",
+                                 positive=True)
 
 
 @dataclass(frozen=True)
