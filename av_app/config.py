@@ -188,10 +188,12 @@ class PlannerSection:
     merge_heading_deg: float = _f(15.0, "the merge into an object's lane ends where the ego's path heads within "
                                         "this of the object's heading (plus one vehicle length); beyond, the object "
                                         "follows the ego", positive=True, high=90.0)
-    escape_speed_max: float = _f(16.667, "ahead of a faster vehicle in its lane (after merging ahead of it, or "
-                                         "with one closing from behind) the ego speeds up at vehicle.max_accel to "
-                                         "its speed, up to this (the road's speed limit; 60 km/h), m/s",
-                                 positive=True)
+    escape_speed_max: float = _f(22.222, "ahead of a faster vehicle in its lane (after merging ahead of it, or "
+                                         "with one closing from behind) the ego speeds up to its speed, up to "
+                                         "this (80 km/h), m/s", positive=True)
+    escape_accel: float = _f(4.0, "... at this acceleration (also when going on through a conflict zone); the "
+                                  "case study's vehicle can do 11.5 m/s^2 below 4.8 m/s and is power-limited "
+                                  "above (fmus/vehicle: 6.8 m/s^2 at 8 m/s, 3.3 at 16.7), m/s^2", positive=True)
 
 
 @dataclass(frozen=True)

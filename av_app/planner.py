@@ -25,7 +25,7 @@ to the vehicle's `max_decel`: the last station from which it can is the
 zone's commit point. `commit_or_yield` decides per conflicting object:
 a comfortable yield (at most `decel_comfort`) when going on would leave less
 than the PET margin; otherwise going on (a profile that accelerates at
-`max_accel` within the route's limits) when the object, holding its speed,
+`planner.escape_accel` within the route's limits) when the object, holding its speed,
 reaches every station of the zone and of the merge into its lane at least
 `merge_gap_s` (and `merge_gap_m`) after the ego has left it; otherwise a
 hard yield when stopping before the zone is still possible; and past the
@@ -197,6 +197,7 @@ class Planner:
         tau_free = timing(path, free)
         pl = cfg.planner
         escape: list[float] = []  # the speeds of faster vehicles closing from behind in the ego's lane
+        tau_go = None  # the ego's timing if it goes on (computed for the first conflict that needs it)
         ego = self.estimator.ego_boxes(path)
         conflicts, stops, choices = [], list(base_stops), []
         yielding, going, go_speed, zones = set(), set(), {}, {}
@@ -220,22 +221,27 @@ class Planner:
                 if o.id in self.going and c.pet is not None:
                     going.add(o.id)  # keep the decision while the object still crosses the path
                 continue
-            # going on: as fast as the vehicle may, and ahead of a faster object on to its speed (up to the limit)
+            # going on: at escape_accel to the route's speeds through the zone, and once merged ahead of a
+            # faster object in its lane, on to its speed (up to escape_speed_max)
+            if tau_go is None:
+                tau_go = timing(path, profile(path, v0, cfg, base_stops, accel=pl.escape_accel))
             cruise = max(cfg.route.cruise_speed, min(o.speed, pl.escape_speed_max))
-            tau_go = timing(path, profile(path, v0, cfg, base_stops, accel=cfg.vehicle.max_accel, cruise=cruise))
             # the zone's entry as first seen while in conflict: a footprint grown by margins flickers by a
             # station step from plan to plan, and a vehicle standing at its stop point would find the zone
             # moved under its nose (and take itself for committed)
             zone_in = min(c.station_in, self.zones.get(o.id, math.inf))
             zones[o.id] = zone_in
-            gap, follow = self.estimator.go_gap(occ, tau_go, path, math.radians(pl.merge_heading_deg),
-                                                cfg.vehicle.length)
+            merge = math.radians(pl.merge_heading_deg)
+            gap, follow = self.estimator.go_gap(occ, tau_go, path, merge, cfg.vehicle.length)
+            if follow is not None and cruise > cfg.route.cruise_speed:
+                tau_esc = timing(path, profile(path, v0, cfg, base_stops, accel=pl.escape_accel, cruise=cruise))
+                follow = self.estimator.go_gap(occ, tau_esc, path, merge, cfg.vehicle.length)[1]
             need_gap = max(pl.merge_gap_s, pl.merge_gap_m / max(o.speed, 1.0))
             ch = commit_or_yield(o.id, v0, s0, zone_in, gap, pet_margin=margin, merge_gap=need_gap,
                                  stop_margin=pl.stop_margin_m, decel_comfort=cfg.control.decel_comfort,
                                  max_decel=cfg.vehicle.max_decel, going=o.id in self.going, follow_gap=follow,
                                  follow_need=pl.merge_gap_m / max(o.speed, 1.0))
-            go_speed[o.id] = cruise
+            go_speed[o.id] = cruise if follow is not None else cfg.route.cruise_speed
             choices.append(ch)
             if ch.action == "yield":
                 stops.append(Stop(zone_in - pl.stop_margin_m, "yield", o.id))
@@ -246,9 +252,10 @@ class Planner:
         go = bool(going) and not yielding
         fast = [go_speed.get(k, cfg.route.cruise_speed) for k in going] if go else []
         fast += [min(v, pl.escape_speed_max) for v in escape]
-        v_plan = profile(path, v0, cfg, stops, accel=cfg.vehicle.max_accel if go or escape else None,
+        v_plan = profile(path, v0, cfg, stops, accel=pl.escape_accel if go or escape else None,
                          cruise=max([cfg.route.cruise_speed, *fast]))
-        accel, target = self._longitudinal(path, v_plan, v0, [st for st in stops if st.s < s0 + self.path_length])
+        accel, target = self._longitudinal(path, v_plan, v0, [st for st in stops if st.s < s0 + self.path_length],
+                                           pl.escape_accel if go or escape else cfg.vehicle.max_accel)
         steer, _ = pure_pursuit(self.route, pose, v0, s0, cfg.vehicle.wheelbase, cfg.control.lookahead_min_m,
                                 cfg.control.lookahead_time_s, cfg.vehicle.max_steer)
         decision, cause = "cruise", ""
@@ -272,7 +279,8 @@ class Planner:
                 decision = "hold"
         return Plan(t, accel, steer, decision, cause, target, s0, lateral, conflicts, stops, choices)
 
-    def _longitudinal(self, path: PathSamples, v_plan: np.ndarray, v0: float, stops: list[Stop]) -> tuple[float, float]:
+    def _longitudinal(self, path: PathSamples, v_plan: np.ndarray, v0: float, stops: list[Stop],
+                      a_max: float) -> tuple[float, float]:
         """Acceleration that follows the profile to its next station, brakes exactly for the nearest stop
         (the station grid does not hold the stop point), corrects a speed above the profile, and feeds the
         road load forward."""
@@ -291,5 +299,5 @@ class Planner:
                 a = min(a, -v0 * v0 / (2 * max(d + margin - STOP_SLACK_M, 0.1)))
         a += cfg.control.speed_kp * min(v_plan[0] - v0, 0.0)  # only brakes: the profile starts at v0 otherwise
         road = cfg.vehicle.road_load_c0 + cfg.vehicle.road_load_c2 * v0 * v0 if v0 > 0.05 else 0.0
-        accel = min(max(a + road, -cfg.vehicle.max_decel), cfg.vehicle.max_accel)
+        accel = min(max(a + road, -cfg.vehicle.max_decel), a_max)
         return float(accel), float(v_plan[k])
