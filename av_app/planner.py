@@ -54,7 +54,8 @@ from av_app.route import PathSamples, Route, pure_pursuit
 
 HYSTERESIS_S = 0.5
 PREVIEW_S = 0.5
-STOP_SLACK_M = 0.2  # past a stop point, the vehicle must still stand this far before the zone  # the longitudinal controller follows the profile's slope over this much time ahead
+STOP_SLACK_M = 0.2
+ESCAPE_HOLD = 1.0  # m/s: ahead of a follower, the ego keeps its speed up to this much above the follower's  # past a stop point, the vehicle must still stand this far before the zone  # the longitudinal controller follows the profile's slope over this much time ahead
 
 
 @dataclass(frozen=True)
@@ -142,6 +143,10 @@ def profile(path: PathSamples, v0: float, cfg: AvConfig, stops: list[Stop], acce
     with np.errstate(divide="ignore"):
         v_curve = np.sqrt(route.lateral_accel_max / np.maximum(np.abs(path.kappa), 1e-9))
     lim = np.minimum(route.cruise_speed if cruise is None else cruise, v_curve)
+    # above a speed limit (a cruise speed just lowered: no follower to speed away from any more) the ego
+    # slows at decel_comfort, not at once: an over-speed is not a hazard, a brake in front of a follower is
+    over = v0 * v0 - 2 * ctl.decel_comfort * (s - s[0])
+    lim = np.sqrt(np.maximum(lim * lim, over))
     v2 = _backward(lim * lim, s, ctl.decel_curve)
     for stop in stops:
         dist = stop.s - s[0]
@@ -206,8 +211,8 @@ class Planner:
                 o = self.lanes.snap(o)
             if self.estimator.follower(o, pose):
                 behind = -float(to_frame(o.x, o.y, pose)[0])
-                if not o.static and o.speed > v0 + 0.5 and behind < (o.speed - v0) * pl.horizon_s:
-                    escape.append(o.speed)  # it would reach the ego within the horizon
+                if not o.static and o.speed > v0 - ESCAPE_HOLD and behind < o.speed * pl.horizon_s:
+                    escape.append(o.speed)  # as fast as the ego (or faster), within the horizon behind it
                 continue
             occ = self.estimator.occupancy(o, ego)
             if not occ.any:
