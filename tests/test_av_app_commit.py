@@ -1,0 +1,70 @@
+"""Commit or yield (issue 38), the pure decision at its boundary: a yield is a plan only while the vehicle
+can still stop before the conflict zone; past that commit point it goes on, because standing in the zone is
+the worst choice; before it, it yields comfortably unless going on clears the object by the PET margin.
+
+The boundary is computed here from the kinematics (v^2 / 2d = room), independently of av_app's code."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from av_app.planner import STOP_SLACK_M, commit_or_yield, stop_decel
+
+V0 = 5.0  # m/s, about the case study's turn speed
+ZONE = 112.5  # the zone's first station (the case study's: the cav's grown footprint touches the ev's lane)
+MARGIN = 1.0  # planner.stop_margin_m
+COMFORT, MAX = 3.0, 8.0  # control.decel_comfort, vehicle.max_decel
+KW = dict(pet_margin=3.0, merge_gap=1.0, stop_margin=MARGIN, decel_comfort=COMFORT, max_decel=MAX)
+
+
+def station_for(decel: float) -> float:
+    """The station from which stopping MARGIN before the zone takes exactly `decel`."""
+    return ZONE - MARGIN - V0 * V0 / (2 * decel)
+
+
+def test_stop_decel_is_the_kinematic_deceleration_and_infinite_past_the_zone():
+    assert stop_decel(V0, station_for(2.5), ZONE, MARGIN) == pytest.approx(2.5)
+    assert stop_decel(0.0, ZONE - 0.3, ZONE, MARGIN) == 0.0  # standing outside the zone: nothing to do
+    # past the stop point, what is left of the margin still counts; in the zone, nothing does
+    s = ZONE - 0.5
+    assert stop_decel(1.0, s, ZONE, MARGIN) == pytest.approx(1.0 / (2 * (0.5 - STOP_SLACK_M)))
+    assert stop_decel(1.0, ZONE - STOP_SLACK_M + 0.01, ZONE, MARGIN) == math.inf
+    assert stop_decel(0.0, ZONE + 0.1, ZONE, MARGIN) == math.inf  # standing in it: it cannot stop "before" it
+
+
+@pytest.mark.parametrize("gap", [None, -0.5, 0.5, 2.0])
+def test_a_yield_just_inside_the_comfortable_commit_point_is_comfortable_unless_going_on_clears(gap):
+    ch = commit_or_yield("ev", V0, station_for(COMFORT) - 0.01, ZONE, gap, **KW)
+    if gap is None:  # nothing of the object on the path if it goes on
+        assert (ch.action, ch.why) == ("go", "clear_ahead")
+    else:
+        assert (ch.action, ch.why) == ("yield", "comfortable_yield")
+        assert ch.need_decel <= COMFORT
+    assert commit_or_yield("ev", V0, station_for(COMFORT) - 0.01, ZONE, 3.2, **KW).why == "clear_ahead"
+
+
+def test_just_past_the_comfortable_commit_point_a_safe_merge_beats_a_hard_brake():
+    s = station_for(COMFORT) + 0.05
+    ch = commit_or_yield("ev", V0, s, ZONE, 1.2, **KW)  # the ev 1.2 s behind through the merge: enough
+    assert (ch.action, ch.why) == ("go", "merge_ahead")
+    ch = commit_or_yield("ev", V0, s, ZONE, 0.8, **KW)  # not enough: brake hard, but before the zone
+    assert (ch.action, ch.why) == ("yield", "hard_yield") and COMFORT < ch.need_decel <= MAX
+    # a merge that clears the zone but that the ev, not braking, would close on afterwards is not safe
+    ch = commit_or_yield("ev", V0, s, ZONE, 1.2, follow_gap=0.1, follow_need=0.3, **KW)
+    assert (ch.action, ch.why) == ("yield", "hard_yield")
+
+
+def test_at_the_last_commit_point_it_never_plans_to_stop_in_the_zone():
+    before, after = station_for(MAX) - 0.05, station_for(MAX) + 0.05
+    assert commit_or_yield("ev", V0, before, ZONE, 0.2, **KW).why == "hard_yield"
+    ch = commit_or_yield("ev", V0, after, ZONE, 0.2, **KW)  # it cannot stop before the zone any more
+    assert (ch.action, ch.why) == ("go", "committed_unsafe") and ch.need_decel > MAX
+    assert commit_or_yield("ev", V0, ZONE + 2.0, ZONE, 1.5, **KW).why == "merge_ahead"  # inside, merging
+
+
+def test_a_decision_to_go_is_kept_while_going_on_stays_safe():
+    s = station_for(COMFORT) - 1.0  # a comfortable yield would be possible again
+    assert commit_or_yield("ev", V0, s, ZONE, 1.5, **KW).why == "comfortable_yield"
+    assert commit_or_yield("ev", V0, s, ZONE, 1.5, going=True, **KW).why == "merge_ahead"
+    assert commit_or_yield("ev", V0, s, ZONE, 0.5, going=True, **KW).why == "comfortable_yield"  # not safe now
