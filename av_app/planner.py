@@ -233,8 +233,14 @@ class Planner:
             cruise = max(cfg.route.cruise_speed, min(o.speed, pl.escape_speed_max))
             # the zone's entry as first seen while in conflict: a footprint grown by margins flickers by a
             # station step from plan to plan, and a vehicle standing at its stop point would find the zone
-            # moved under its nose (and take itself for committed)
-            zone_in = min(c.station_in, self.zones.get(o.id, math.inf))
+            # moved under its nose (and take itself for committed), or brake hard for a stop point moved back
+            # by half a metre; so the first entry seen is kept
+            # for good; it moves nearer only while the ego can still stop comfortably before the new entry
+            # (the stop margin and the grown footprints absorb a station step of jitter), never further away
+            zone_in = self.zones.get(o.id, c.station_in)
+            if c.station_in < zone_in and stop_decel(v0, s0, c.station_in, pl.stop_margin_m) <= \
+                    cfg.control.decel_comfort:
+                zone_in = c.station_in
             zones[o.id] = zone_in
             merge = math.radians(pl.merge_heading_deg)
             gap, follow = self.estimator.go_gap(occ, tau_go, path, merge, cfg.vehicle.length)

@@ -17,6 +17,7 @@ import argparse
 import csv
 import json
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -71,25 +72,20 @@ def point_row(run: Path) -> dict:
 
 
 def read_sweep(folder: Path) -> list[dict]:
-    table = folder / "sweep.csv"
-    if not table.exists():
-        raise SystemExit(f"{folder}: no sweep.csv (run `v2i sweep scenarios/sweeps/ima_timing.toml` first)")
-    points = []
-    with table.open() as f:
-        for row in csv.DictReader(f):
-            if row.get("status") != "ok":
-                continue
-            run = folder / row["folder"] if row.get("folder") else None
-            if run is None or not run.exists():
-                cands = [p for p in folder.iterdir() if p.is_dir() and p.name.startswith(
-                    f"ev={row['ev']}_rsu={row['rsu']}-")]
-                if not cands:
-                    continue
-                run = cands[0]
-            p = {"ev": row["ev"], "rsu": row["rsu"], **point_row(run)}
-            p["speed"], p["offset"] = p["ev"][:5], float(p["ev"][5:])
-            points.append(p)
-    return points
+    """Every finished point of the sweep folder (points.jsonl: written as points finish, so a sweep still
+    running, or a subset of it, can be read too); the axes from the run folder's name (ev=37mph+1.00_rsu=on-ID)."""
+    log = folder / "points.jsonl"
+    if not log.exists():
+        raise SystemExit(f"{folder}: no points.jsonl (run `v2i sweep scenarios/sweeps/ima_timing.toml` first)")
+    points = {}
+    for line in log.read_text().splitlines():
+        rec = json.loads(line)
+        run = Path(rec["run_dir"])
+        name = re.fullmatch(r"ev=(\d+mph)([+-]\d+\.\d+)_rsu=(on|off)-\w+", run.name)
+        if rec.get("status") != "ok" or name is None or not (run / "metrics.json").exists():
+            continue
+        points[run.name] = {"speed": name[1], "offset": float(name[2]), "rsu": name[3], **point_row(run)}
+    return list(points.values())
 
 
 def fmt(v, nd=2) -> str:
