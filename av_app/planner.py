@@ -53,6 +53,7 @@ from av_app.lanes import LaneMap
 from av_app.route import PathSamples, Route, pure_pursuit
 
 HYSTERESIS_S = 0.5
+GO_HYSTERESIS_S = 0.3  # s of gap a decision to go may lose before it is reconsidered
 PREVIEW_S = 0.5
 STOP_SLACK_M = 0.2
 ESCAPE_HOLD = 1.0  # m/s: ahead of a follower, the ego keeps its speed up to this much above the follower's  # past a stop point, the vehicle must still stand this far before the zone  # the longitudinal controller follows the profile's slope over this much time ahead
@@ -105,8 +106,9 @@ def commit_or_yield(object_id: str, v0: float, s0: float, zone_in: float, go_gap
     standing in the zone is worse.
     """
     need = stop_decel(v0, s0, zone_in, stop_margin)
-    follows = follow_gap is None or follow_gap >= follow_need
-    safe_go = (go_gap is None or go_gap >= merge_gap) and follows
+    slack = GO_HYSTERESIS_S if going else 0.0  # a decision to go is not undone by a gap a plan's noise shorter
+    follows = follow_gap is None or follow_gap >= follow_need - slack
+    safe_go = (go_gap is None or go_gap >= merge_gap - slack) and follows
     clear = (go_gap is None or go_gap >= pet_margin) and follows
     if need <= decel_comfort and not clear and not (going and safe_go):
         return Choice(object_id, "yield", need, go_gap, zone_in, "comfortable_yield")

@@ -68,3 +68,8 @@ def test_a_decision_to_go_is_kept_while_going_on_stays_safe():
     assert commit_or_yield("ev", V0, s, ZONE, 1.5, **KW).why == "comfortable_yield"
     assert commit_or_yield("ev", V0, s, ZONE, 1.5, going=True, **KW).why == "merge_ahead"
     assert commit_or_yield("ev", V0, s, ZONE, 0.5, going=True, **KW).why == "comfortable_yield"  # not safe now
+    # past the comfortable commit point, a gap one plan's noise short of merge_gap does not undo it
+    s = station_for(COMFORT) + 0.5
+    assert commit_or_yield("ev", V0, s, ZONE, 0.95, **KW).why == "hard_yield"
+    assert commit_or_yield("ev", V0, s, ZONE, 0.95, going=True, **KW).why == "merge_ahead"
+    assert commit_or_yield("ev", V0, s, ZONE, 0.6, going=True, **KW).why == "hard_yield"
