@@ -73,3 +73,27 @@ def test_a_decision_to_go_is_kept_while_going_on_stays_safe():
     assert commit_or_yield("ev", V0, s, ZONE, 0.95, **KW).why == "hard_yield"
     assert commit_or_yield("ev", V0, s, ZONE, 0.95, going=True, **KW).why == "merge_ahead"
     assert commit_or_yield("ev", V0, s, ZONE, 0.6, going=True, **KW).why == "hard_yield"
+
+
+@pytest.mark.parametrize("distance, speed, safe", [(53.0, 16.667, False), (53.0, 20.8, False),
+                                                    (80.0, 16.667, True), (100.0, 16.667, True)])
+def test_the_rsu_coverage_a_phantom_vehicle_would_need(distance, speed, safe):
+    """docs/ima-timing.md: at the cav's comfortable commit point at its turn speed, merging ahead of a
+    vehicle just beyond the RSU's coverage (60 m from the pole = 53 m from the junction on the west arm) at
+    60 km/h is not safe, so a phantom there would stop the cav at every crossing; from 80 m it is."""
+    from pathlib import Path
+
+    from av_app.config import load
+    from av_app.fusion import FusedObject
+    from av_app.lanes import LaneMap
+    from av_app.planner import Planner
+    from av_app.route import Route
+
+    cfg = load(Path(__file__).resolve().parent.parent / "scenarios" / "apps" / "av.toml")
+    route = Route(cfg.route.waypoints, cfg.route.corner_radius)
+    v = math.sqrt(cfg.route.lateral_accel_max * cfg.route.corner_radius)  # the turn speed
+    s = ZONE - MARGIN - v * v / (2 * cfg.control.decel_comfort)
+    x, y, yaw, _ = route.at(s)
+    phantom = FusedObject("phantom", "v2x", 0.0, -distance, -1.75, 0.0, speed, 0.0, 4.5, 1.8)
+    plan = Planner(cfg, route, LaneMap(7.0, 230.0)).plan(0.0, (float(x), float(y), float(yaw)), v, [phantom])
+    assert (plan.decision in ("cruise", "go")) is safe, (plan.decision, plan.choices, plan.conflicts)
