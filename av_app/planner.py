@@ -95,7 +95,7 @@ def stop_decel(v0: float, s0: float, zone_in: float, stop_margin: float) -> floa
 def commit_or_yield(object_id: str, v0: float, s0: float, zone_in: float, go_gap: float | None, *,
                     pet_margin: float, merge_gap: float, stop_margin: float, decel_comfort: float,
                     max_decel: float, going: bool = False, follow_gap: float | None = None,
-                    follow_need: float = 0.0) -> Choice:
+                    follow_need: float = 0.0, behind_gap: float | None = None) -> Choice:
     """Yield (stop before the zone) or go on (clear it), for one object whose PET on the free profile is short.
 
     In this order: a yield the vehicle can make comfortably is taken unless going on clears the object by
@@ -108,8 +108,12 @@ def commit_or_yield(object_id: str, v0: float, s0: float, zone_in: float, go_gap
     need = stop_decel(v0, s0, zone_in, stop_margin)
     slack = GO_HYSTERESIS_S if going else 0.0  # a decision to go is not undone by a gap a plan's noise shorter
     follows = follow_gap is None or follow_gap >= follow_need - slack
-    safe_go = (go_gap is None or go_gap >= merge_gap - slack) and follows
-    clear = (go_gap is None or go_gap >= pet_margin) and follows
+    # behind an object that has passed (behind_gap), the ego needs only merge_gap: the object does not have
+    # to react to it, so the PET margin (giving way) is for the stations the ego would pass first
+    after = behind_gap is None or behind_gap >= merge_gap - slack
+    safe_go = (go_gap is None or go_gap >= merge_gap - slack) and follows and after
+    clear = (go_gap is None or go_gap >= pet_margin) and follows and after
+    go_gap = go_gap if go_gap is not None else behind_gap  # what the plan log shows
     if need <= decel_comfort and not clear and not (going and safe_go):
         return Choice(object_id, "yield", need, go_gap, zone_in, "comfortable_yield")
     if clear:
@@ -240,21 +244,23 @@ class Planner:
             # for good; it moves nearer only while the ego can still stop comfortably before the new entry
             # (the stop margin and the grown footprints absorb a station step of jitter), never further away
             zone_in = self.zones.get(o.id, c.station_in)
-            if c.station_in < zone_in and stop_decel(v0, s0, c.station_in, pl.stop_margin_m) <= \
-                    cfg.control.decel_comfort:
+            room = c.station_in - pl.stop_margin_m - s0  # to the new stop point, its margin kept whole
+            if c.station_in < zone_in and (v0 <= 0.05 or (room > 0.5 and v0 * v0 / (2 * room) <=
+                                                          cfg.control.decel_comfort)):
                 zone_in = c.station_in
             zones[o.id] = zone_in
             merge = math.radians(pl.merge_heading_deg)
-            gap, follow = self.estimator.go_gap(occ, tau_go, path, merge, cfg.vehicle.length)
-            if follow is not None and cruise > cfg.route.cruise_speed:
+            gaps = self.estimator.go_gap(occ, tau_go, path, merge, cfg.vehicle.length)
+            follow, leads = gaps.follow, gaps.leads
+            if leads and cruise > cfg.route.cruise_speed:  # merged ahead of a faster object: speed up
                 tau_esc = timing(path, profile(path, v0, cfg, base_stops, accel=pl.escape_accel, cruise=cruise))
-                follow = self.estimator.go_gap(occ, tau_esc, path, merge, cfg.vehicle.length)[1]
+                follow = self.estimator.go_gap(occ, tau_esc, path, merge, cfg.vehicle.length).follow
             need_gap = max(pl.merge_gap_s, pl.merge_gap_m / max(o.speed, 1.0))
-            ch = commit_or_yield(o.id, v0, s0, zone_in, gap, pet_margin=margin, merge_gap=need_gap,
+            ch = commit_or_yield(o.id, v0, s0, zone_in, gaps.ahead, pet_margin=margin, merge_gap=need_gap,
                                  stop_margin=pl.stop_margin_m, decel_comfort=cfg.control.decel_comfort,
                                  max_decel=cfg.vehicle.max_decel, going=o.id in self.going, follow_gap=follow,
-                                 follow_need=pl.merge_gap_m / max(o.speed, 1.0))
-            go_speed[o.id] = cruise if follow is not None else cfg.route.cruise_speed
+                                 follow_need=pl.merge_gap_m / max(o.speed, 1.0), behind_gap=gaps.behind)
+            go_speed[o.id] = cruise if leads else cfg.route.cruise_speed
             choices.append(ch)
             if ch.action == "yield":
                 stops.append(Stop(zone_in - pl.stop_margin_m, "yield", o.id))
