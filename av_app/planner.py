@@ -24,7 +24,8 @@ predicted footprint occupies), at `decel_stop` or as hard as that needs up
 to the vehicle's `max_decel`: the last station from which it can is the
 zone's commit point. `commit_or_yield` decides per conflicting object:
 a comfortable yield (at most `decel_comfort`) when going on would leave less
-than the PET margin; otherwise going on (a profile that accelerates at
+than the PET margin (at the stations the ego passes first; behind an object
+that has crossed, `merge_gap_s` is enough); otherwise going on (a profile that accelerates at
 `planner.escape_accel` within the route's limits) when the object, holding its speed,
 reaches every station of the zone and of the merge into its lane at least
 `merge_gap_s` (and `merge_gap_m`) after the ego has left it; otherwise a
