@@ -79,11 +79,13 @@ class Choice:
     why: str  # comfortable_yield | clear_ahead | merge_ahead | hard_yield | committed_unsafe
 
 
-def stop_decel(v0: float, s0: float, zone_in: float, stop_margin: float) -> float:
+def stop_decel(v0: float, s0: float, zone_in: float, stop_margin: float, grown: float = 0.0) -> float:
     """The deceleration that stops the ego (at v0, station s0) `stop_margin` before a zone that starts at
     zone_in, or within that margin once it is past the stop point (the controller stops there exactly);
-    0 standing outside the zone; inf when it can no longer stop outside the zone."""
-    if v0 <= 0.05 and s0 < zone_in:
+    0 standing outside the zone (up to `grown` past its entry: the entry is where the footprints grown by
+    the safety margins touch, so a standing vehicle that far in is still clear of the lane); inf when it
+    can no longer stop outside the zone."""
+    if v0 <= 0.05 and s0 < zone_in + grown:
         return 0.0
     room = zone_in - stop_margin - s0
     if room <= 0.05:
@@ -96,7 +98,7 @@ def stop_decel(v0: float, s0: float, zone_in: float, stop_margin: float) -> floa
 def commit_or_yield(object_id: str, v0: float, s0: float, zone_in: float, go_gap: float | None, *,
                     pet_margin: float, merge_gap: float, stop_margin: float, decel_comfort: float,
                     max_decel: float, going: bool = False, follow_gap: float | None = None,
-                    follow_need: float = 0.0, behind_gap: float | None = None) -> Choice:
+                    follow_need: float = 0.0, behind_gap: float | None = None, grown: float = 0.0) -> Choice:
     """Yield (stop before the zone) or go on (clear it), for one object whose PET on the free profile is short.
 
     In this order: a yield the vehicle can make comfortably is taken unless going on clears the object by
@@ -106,7 +108,7 @@ def commit_or_yield(object_id: str, v0: float, s0: float, zone_in: float, go_gap
     the zone is possible at all; past that commit point, going on even though it is not safe, because
     standing in the zone is worse.
     """
-    need = stop_decel(v0, s0, zone_in, stop_margin)
+    need = stop_decel(v0, s0, zone_in, stop_margin, grown)
     slack = GO_HYSTERESIS_S if going else 0.0  # a decision to go is not undone by a gap a plan's noise shorter
     follows = follow_gap is None or follow_gap >= follow_need - slack
     # behind an object that has passed (behind_gap), the ego needs only merge_gap: the object does not have
@@ -246,8 +248,7 @@ class Planner:
             # (the stop margin and the grown footprints absorb a station step of jitter), never further away
             zone_in = self.zones.get(o.id, c.station_in)
             room = c.station_in - pl.stop_margin_m - s0  # to the new stop point, its margin kept whole
-            if c.station_in < zone_in and (v0 <= 0.05 or (room > 0.5 and v0 * v0 / (2 * room) <=
-                                                          cfg.control.decel_comfort)):
+            if c.station_in < zone_in and room > 0.5 and v0 * v0 / (2 * room) <= cfg.control.decel_comfort:
                 zone_in = c.station_in
             zones[o.id] = zone_in
             merge = math.radians(pl.merge_heading_deg)
@@ -260,7 +261,8 @@ class Planner:
             ch = commit_or_yield(o.id, v0, s0, zone_in, gaps.ahead, pet_margin=margin, merge_gap=need_gap,
                                  stop_margin=pl.stop_margin_m, decel_comfort=cfg.control.decel_comfort,
                                  max_decel=cfg.vehicle.max_decel, going=o.id in self.going, follow_gap=follow,
-                                 follow_need=pl.merge_gap_m / max(o.speed, 1.0), behind_gap=gaps.behind)
+                                 follow_need=pl.merge_gap_m / max(o.speed, 1.0), behind_gap=gaps.behind,
+                                 grown=2 * pl.margin_m)
             go_speed[o.id] = cruise if leads else cfg.route.cruise_speed
             choices.append(ch)
             if ch.action == "yield":

@@ -31,6 +31,11 @@ def test_stop_decel_is_the_kinematic_deceleration_and_infinite_past_the_zone():
     assert stop_decel(1.0, s, ZONE, MARGIN) == pytest.approx(1.0 / (2 * (0.5 - STOP_SLACK_M)))
     assert stop_decel(1.0, ZONE - STOP_SLACK_M + 0.01, ZONE, MARGIN) == math.inf
     assert stop_decel(0.0, ZONE + 0.1, ZONE, MARGIN) == math.inf  # standing in it: it cannot stop "before" it
+    # ... unless "in it" is within the footprints' safety margins (0.4 m each): standing there is clear
+    assert stop_decel(0.0, ZONE + 0.5, ZONE, MARGIN, grown=0.8) == 0.0
+    assert stop_decel(0.0, ZONE + 0.9, ZONE, MARGIN, grown=0.8) == math.inf
+    ch = commit_or_yield("ev", 0.0, ZONE + 0.5, ZONE, -0.3, grown=0.8, **KW)  # the cav at the line, ev passing
+    assert (ch.action, ch.why) == ("yield", "comfortable_yield")
 
 
 @pytest.mark.parametrize("gap", [None, -0.5, 0.5, 2.0])
