@@ -49,12 +49,13 @@ def test_a_yield_just_inside_the_comfortable_commit_point_is_comfortable_unless_
     assert commit_or_yield("ev", V0, station_for(COMFORT) - 0.01, ZONE, 3.2, **KW).why == "clear_ahead"
 
 
-def test_following_an_object_that_has_passed_needs_the_merge_gap_not_the_pet_margin():
+def test_following_an_object_that_has_passed_needs_the_pet_margin_to_be_clear():
     s = station_for(COMFORT) - 1.0  # a comfortable yield is possible
-    ch = commit_or_yield("ev", V0, s, ZONE, None, behind_gap=1.2, **KW)  # the ev crosses 1.2 s before the ego
-    assert (ch.action, ch.why) == ("go", "clear_ahead")
-    assert commit_or_yield("ev", V0, s, ZONE, None, behind_gap=0.8, **KW).why == "comfortable_yield"
-    assert commit_or_yield("ev", V0, s, ZONE, 2.0, behind_gap=1.2, **KW).why == "comfortable_yield"  # ahead: PET
+    assert commit_or_yield("ev", V0, s, ZONE, None, behind_gap=1.2, **KW).why == "comfortable_yield"
+    assert commit_or_yield("ev", V0, s, ZONE, None, behind_gap=3.2, **KW).why == "clear_ahead"
+    s = station_for(COMFORT) + 0.5  # past the comfortable commit point, merge_gap behind it is safe
+    assert commit_or_yield("ev", V0, s, ZONE, None, behind_gap=1.2, **KW).why == "merge_ahead"
+    assert commit_or_yield("ev", V0, s, ZONE, None, behind_gap=0.8, **KW).why == "hard_yield"
 
 
 def test_just_past_the_comfortable_commit_point_a_safe_merge_beats_a_hard_brake():
