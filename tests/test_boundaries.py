@@ -74,6 +74,8 @@ RULES: dict[str, tuple[frozenset[str] | None, str]] = {
     "evaluation": (None, "evaluation/ may import everything"),
     "attacker": (frozenset({"attacker", "bridges"}),
                  "attacker/ imports only bridges of the project (a participant like the apps)"),
+    "obu_app": (frozenset({"obu_app", "bridges"}),
+                "obu_app/ imports only bridges of the project (a participant like the apps)"),
 }
 BUNDLED_RULE = "a bridges module bundled into an FMU (fmus._bundled.<name>) imports only the standard library"
 BUNDLED_PACKAGE = "fmus._bundled"  # exists only inside a built FMU (fmus/builder.py)
