@@ -143,3 +143,44 @@ def test_bad_frames_are_counted_by_reason_never_raised(pki):
     good = signed(ev, srm(), 1.0)
     assert s.receive(good, 1.0) is not None and s.receive(good, 1.01) is None   # a replay is refused
     assert r["replayed"] == 1 and s.srms == 1
+
+
+# -- inside the RSU's discrete-event core: SRM -> call -> ack -> controller status -> SSM ----------------------
+def test_the_rsu_core_turns_an_srm_into_a_preemption_call_and_ssms_that_follow_the_controller(pki):
+    from bridges import ab3418
+    from rsu_app.controller_link import PreemptAck
+    from rsu_app.core import RsuCore
+    from rsu_app.spat_stage import SpatStage
+
+    ca, ev, rsu = pki
+    latency = LatencyModel("lockstep", "fixed", {})
+    envelope = Envelope(Signer(rsu, 0.0))   # the full certificate in every frame: each check below stands alone
+    spat = SpatStage("rsu", EPOCH, envelope, latency, intersection_id=IX, signal_groups=[2, 4, 6, 8], baud=9600,
+                     max_age_s=0.5)
+    prio = PriorityStage(core(), Verifier([ca.certificate]), "rsu", EPOCH, envelope, latency)
+    rsu_core = RsuCore(latency, spat=spat, priority=prio, spat_rate_hz=10.0, ssm_rate_hz=10.0)
+    verifier = Verifier([ca.certificate])
+
+    def ssm_states(txs, t):
+        return [Ssm.decode(verifier.verify(x.payload, time64_us(EPOCH + t)).payload).status[0].requests[0].status
+                for x in txs if x.kind == "ssm"]
+
+    assert ssm_states(rsu_core.step(0.0), 0.0) == []
+    rsu_core.step(0.5, srms=[(signed(ev, srm(), 0.45), 0.45)])
+    assert rsu_core.take_preempt_calls() == [(0.45, True)]
+    assert ssm_states(rsu_core.step(0.6), 0.6) == ["requested"]
+    ack = PreemptAck(True, 9, 8, True, 0.0)
+    rsu_core.step(0.65, acks=[ack])
+    assert ssm_states(rsu_core.step(0.7), 0.7) == ["processing"]
+    for seq, t in ((2, 2.0), (3, 4.0)):   # renewals keep the request (and the call) standing
+        rsu_core.step(t, srms=[(signed(ev, srm(kind="priorityRequestUpdate", seq=seq), t), t)])
+    assert rsu_core.take_preempt_calls() == []
+    green_8 = ab3418.ShortStatus(greens=(1 << 3) | (1 << 7), status=ab3418.STATUS_PREEMPT, pattern=1)
+    rsu_core.step(5.0, statuses=[(green_8, 10)])
+    assert ssm_states(rsu_core.step(5.1), 5.1) == ["granted"]
+    kinds = [(r["kind"], r.get("status")) for r in rsu_core.take_priority_records()]
+    assert kinds[:2] == [("srm", None), ("preempt_call", None)]
+    assert ("preempt_ack", None) in kinds and ("status", "granted") in kinds
+    # no renewal: the request expires and the call is released
+    rsu_core.step(4.0 + prio.core.expire_s + 0.2)
+    assert rsu_core.take_preempt_calls() == [(pytest.approx(4.0 + prio.core.expire_s + 0.1), False)]
