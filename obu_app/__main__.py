@@ -17,11 +17,14 @@ from obu_app.config import ConfigError, ObuConfig, read
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m obu_app", description=__doc__.split("\n\n")[0])
     p.add_argument("--config", metavar="FILE", help="TOML file: [app], [bus], [security], [evsp]")
+    p.add_argument("--no-request", action="store_true", help="listen only: send no SRM ([evsp] enabled = false)")
     p.add_argument("--log-level", default="WARNING")
     args = p.parse_args(argv)
     logging.basicConfig(level=args.log_level.upper(), format="obu_app %(levelname)s %(message)s")
     try:
         cfg = read(args.config) if args.config else ObuConfig()
+        if args.no_request:
+            cfg.evsp.enabled = False
         from obu_app.app import ObuApp
 
         app = ObuApp(cfg)

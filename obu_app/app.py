@@ -166,7 +166,8 @@ class ObuApp:
                 self.published += 1
             except Exception as exc:
                 log.warning("SRM not published: %s", exc)
-            self._trace({"kind": "srm_sent", "t": t, "srm": kind, "lane": self.core.lane.lane_id,
+            self._trace({"kind": "srm_sent", "t": t, "srm": kind, "vehicle": self.cfg.app.vehicle,
+                         "lane": self.core.lane.lane_id,
                          "signal_group": self.core.lane.signal_group,
                          "to_stop_line_m": round(self.core.lane.to_stop_line_m, 3)})
         if self.core.ssm_status != before:

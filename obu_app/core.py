@@ -49,6 +49,7 @@ class OnLane:
 
 @dataclass
 class EvsConfig:
+    enabled: bool = True        # False: listen only (a baseline run without the request)
     vehicle_id: int = 0xE1
     role: str = "emergency"
     request_id: int = 1
@@ -139,7 +140,7 @@ class EvsCore:
 
     def step(self, t: float, pose: Pose) -> list[tuple[str, Srm]]:
         """The SRMs to send at t: (kind, message) with kind request | update | cancel."""
-        if self.geometry is None or self.state == DONE:
+        if self.geometry is None or self.state == DONE or not self.cfg.enabled:
             return []
         if self.state == IDLE:
             on = locate(self.geometry, pose)
