@@ -66,6 +66,7 @@ class ObuApp:
         self._inbox: list = []
         self._lock = threading.Lock()
         self._order = 0
+        self._announced = False
 
     def _keys(self):
         sec = self.cfg.security
@@ -150,6 +151,9 @@ class ObuApp:
 
     # -- output -------------------------------------------------------------------------------------------
     def _step(self, t: float) -> None:
+        if not self._announced:   # who the ev is, for the run's metrics, also when it only listens
+            self._announced = True
+            self._trace({"kind": "obu", "t": t, "vehicle": self.cfg.app.vehicle, "requests": self.cfg.evsp.enabled})
         if self.pose is None:
             return
         before = self.core.ssm_status

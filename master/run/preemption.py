@@ -2,7 +2,7 @@
 
 Generic on purpose (the master never imports an app): it reads the "evsp"
 trace records any app left in trace.jsonl (the requesting vehicle's
-`srm_sent`, the RSU's `srm`, `preempt_call`, `preempt_ack`, `status`), the
+`obu` and `srm_sent`, the RSU's `srm`, `preempt_call`, `preempt_ack`, `status`), the
 controller's `<instance>.state_<group>` columns and the vehicles' `<name>.x`,
 `.y`, `.v` columns of timeseries.csv, and the intersection and signal heads of
 scenario.resolved.toml.
@@ -131,7 +131,7 @@ def preemption_metrics(run_dir: Path, traces: list[dict[str, Any]], rows: list[d
     half = width / 2 if width else None
     sent = [r for r in recs if r.get("kind") == "srm_sent"]
     first = next((r for r in sent if r.get("srm") == "request"), None)
-    ev = first.get("vehicle") if first else None
+    ev = first.get("vehicle") if first else next((r.get("vehicle") for r in recs if r.get("kind") == "obu"), None)
     group = first.get("signal_group") if first else None
     statuses = [r for r in recs if r.get("kind") == "status"]
     granted = next((r for r in statuses if r.get("status") == "granted"), None)
