@@ -71,3 +71,18 @@ def test_no_violation_when_the_cross_vehicle_enters_on_green_and_none_without_re
     m = preemption_metrics(tmp_path, TRACES, rows(nb_start_y=-20.0))   # nb in the box at t = 1.65: green
     assert m["red_violations"] == 0 and m["ev_delay_s"] == pytest.approx(0.0, abs=0.02)
     assert preemption_metrics(tmp_path, [{"kind": "detections"}], rows()) is None
+
+
+def test_the_console_verdict_and_the_report_show_the_section():
+    from master.run.verdict import verdict_lines
+
+    p = {"requested": True, "granted": True, "srm_to_green_ms": 5900.0, "ev": "ev", "ev_delay_s": 0.01,
+         "ev_stopped_s": 0.0, "red_violations": 0, "stages_ms": {"srm_air": 2.546, "serial_wire": 17.708,
+                                                                  "serial_request_bytes": 9, "ssm": None}}
+    lines = verdict_lines({"preemption": p})
+    assert lines[0] == ("preemption: granted — SRM to green 5900 ms; ev ev delay 0.01 s, stopped 0.00 s; "
+                        "red violations 0")
+    assert lines[1] == "  stages: srm_air 2.5 ms, serial_wire 17.7 ms"
+    baseline = verdict_lines({"preemption": {"requested": False, "granted": False, "ev": "ev", "ev_delay_s": None,
+                                             "ev_stopped_s": 0.0, "red_violations": 1, "stages_ms": {}}})
+    assert baseline == ["preemption: not requested; ev ev delay n/a s, stopped 0.00 s; red violations 1"]
