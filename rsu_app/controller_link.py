@@ -130,9 +130,8 @@ class ControllerLink:
                 self._send_locked()
 
     def collect_preempt(self) -> list[PreemptAck]:
-        """SetPreempt acknowledgements since the last call (reading what has arrived first)."""
+        """SetPreempt acknowledgements read by `collect()` (call it first, at the same tick) since the last call."""
         with self._lock:
-            self._pump_locked()
             out, self._preempt_acks = self._preempt_acks, []
         return out
 

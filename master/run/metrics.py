@@ -235,9 +235,10 @@ def run_metrics(run_dir: Path, meta: dict[str, Any]) -> dict[str, Any] | None:
     out["rtf"] = (meta.get("realtime") or {}).get("target_rtf") if meta.get("mode") == "realtime" else None
     out["latency_policy"] = _policy(run_dir)
     out["clock_bound_ms"] = clock_bounds(meta)
-    preemption = preemption_metrics(run_dir, traces, read_csv(run_dir / "timeseries.csv"))
-    if preemption is not None:
-        out["preemption"] = preemption
+    if any(r.get("record") == "evsp" for r in traces):  # the time series is read only for a preemption run
+        preemption = preemption_metrics(run_dir, traces, read_csv(run_dir / "timeseries.csv"))
+        if preemption is not None:
+            out["preemption"] = preemption
     return out
 
 
