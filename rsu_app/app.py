@@ -34,11 +34,15 @@ import traceback
 import numpy as np
 
 from bridges.geo import GeoOrigin
-from bridges.security import PSID_SPAT_MAP, PSID_SURROGATE_BSM
+import threading
+from pathlib import Path
+
+from bridges.security import (PSID_SPAT_MAP, PSID_SSM, PSID_SURROGATE_BSM, SecurityFormatError, Verifier,
+                              load_certificate)
 from bridges.timesync.errors import TimeSyncError
 from bridges.timesync.exits import EXIT_CONFIG, EXIT_ERROR, EXIT_OK, SESSION_ERRORS, session_end
 from bridges.timesync.participant import Participant, bus_from_env
-from bridges.v2x import EPOCH, trace_key, tx_key
+from bridges.v2x import EPOCH, rx_key, trace_key, tx_key
 from rsu_app.bsm_stage import BsmStage
 from rsu_app.camera import CameraIngest
 from rsu_app.config import ConfigError, Settings
@@ -49,6 +53,8 @@ from rsu_app.health import Health, clean, percentiles_ms
 from rsu_app.intersection_map import intersection_geometry
 from rsu_app.perception_stage import PerceptionStage
 from rsu_app.sdsm_stage import SdsmStage
+from rsu_app.priority import PriorityCore, ingress_lanes
+from rsu_app.priority_stage import PriorityStage
 from rsu_app.spat_stage import MapStage, SpatStage
 from rsu_app.timing import LatencyModel
 
@@ -109,6 +115,8 @@ class RsuApp:
             psids.append(settings.v2x.sdsm_psid)
         if self.serial_url or settings.map.enabled:
             psids.append(PSID_SPAT_MAP)
+        if settings.priority.enabled:
+            psids.append(PSID_SSM)
         self.envelope = Envelope.load(settings.security.mode, settings.security.pki_dir,
                                       settings.security.credential or self.station, psids,
                                       settings.security.certificate_interval_s)
@@ -123,8 +131,37 @@ class RsuApp:
         self.trace_records = 0
         self.trace_errors = 0
         self.notes: list[str] = []
+        self.srm_verifier = self._srm_verifier() if settings.priority.enabled else None
+        self._heard: list[tuple[bytes, float]] = []   # V2X frames heard (payload, arrival), for the priority stage
+        self._heard_lock = threading.Lock()
         self.ended = None
         self.exit_reason = ""
+
+    def _srm_verifier(self) -> Verifier:
+        """The 1609.2 checks of the SRMs: the scenario CA (`priority.trust_anchor`); ConfigError when unusable."""
+        p, sec = self.s.priority, self.s.security
+        path = Path(p.trust_anchor) if p.trust_anchor else Path(sec.pki_dir or ".") / "v2i-scenario-ca.cert"
+        anchors = []
+        if sec.mode != "unsecured" or p.trust_anchor:
+            try:
+                anchors.append(load_certificate(path))
+            except (SecurityFormatError, OSError) as exc:
+                raise ConfigError([("priority.trust_anchor", f"cannot load the CA certificate {str(path)!r}: "
+                                                            f"{getattr(exc, 'reason', exc)}")]) from None
+        return Verifier(anchors, max_age_s=p.max_age_s, allow_unsecured=sec.mode == "unsecured")
+
+    def _on_heard(self, msg) -> None:
+        with self._heard_lock:
+            self._heard.append((bytes(msg.payload), float(msg.t_sim)))
+
+    def _take_heard(self, t: float | None) -> list[tuple[bytes, float]]:
+        with self._heard_lock:
+            if t is None:
+                out, self._heard = self._heard, []
+            else:
+                out = [h for h in self._heard if h[1] <= t + 1e-9]
+                self._heard = [h for h in self._heard if h[1] > t + 1e-9]
+        return sorted(out, key=lambda h: h[1])
 
     # -- set-up once joined ---------------------------------------------------------------------------
     def _build_core(self, world: dict) -> RsuCore:
@@ -162,9 +199,18 @@ class RsuApp:
             except ValueError as exc:
                 self.notes.append(f"no MAP: {exc}")
                 log.info("no MAP: %s", exc)
+        priority = None
+        if s.priority.enabled:
+            if map_stage is None or spat is None:
+                self.notes.append("priority: no SRMs served (needs the controller link and the MAP)")
+            else:
+                core = PriorityCore(s.spat.intersection_id, ingress_lanes(map_stage.geometry),
+                                    set(s.priority.preempt_groups), expire_s=s.priority.expire_s)
+                priority = PriorityStage(core, self.srm_verifier, self.station, epoch, self.envelope, self.latency)
         return RsuCore(self.latency, perception, bsm, spat, map_stage, bsm_rate_hz=s.timing.bsm_rate_hz,
                        spat_rate_hz=s.spat.rate_hz, map_rate_hz=s.map.rate_hz, realtime=not lockstep,
-                       trace_detections=self.traces_detections, sdsm=sdsm)
+                       trace_detections=self.traces_detections, sdsm=sdsm, priority=priority,
+                       ssm_rate_hz=s.priority.ssm_rate_hz)
 
     # -- running ------------------------------------------------------------------------------------------
     def run(self) -> int:
@@ -187,7 +233,10 @@ class RsuApp:
                 self.link = ControllerLink(self.serial_url, s.spat.controller, s.spat.baud, s.spat.poll,
                                            s.spat.answer_timeout_s)
                 self.link.open()
-            publishes = [tx_key(self.station)] + ([trace_key(self.name)] if self.traces_detections else [])
+            if s.priority.enabled:
+                self._heard_sub = self.bus.subscribe(rx_key(self.station), self._on_heard)
+            publishes = [tx_key(self.station)] + ([trace_key(self.name)]
+                                                  if self.traces_detections or s.priority.enabled else [])
             self.part = Participant(self.bus, self.name, s.role, publishes=publishes)
             self.welcome = self.part.join(timeout=s.bus.join_timeout_s)
             if self.link is not None:
@@ -229,8 +278,11 @@ class RsuApp:
             self.t_sim = tick.t
             frames = self.ingest.collect(tick.t, wait=True) if self.ingest is not None else []
             statuses = [(a.status, a.wire_bytes) for a in self.link.collect()] if self.link is not None else []
-            self._publish(self.core.step(tick.t, frames, statuses, self._horizon(tick)))
+            acks = self.link.collect_preempt() if self.link is not None else []
+            self._publish(self.core.step(tick.t, frames, statuses, self._horizon(tick), srms=self._take_heard(tick.t),
+                                         acks=acks))
             self._trace(self.core.take_records())
+            self._priority_out()
             self.part.ack(tick, time.perf_counter() - c0)
             self.ticks += 1
             self.health.maybe_report()
@@ -243,7 +295,7 @@ class RsuApp:
         step = float(getattr(tick, "step", 0.0) or 0.0)
         if not step > 0:
             return None
-        if self.ingest is not None:
+        if self.ingest is not None or self.core.priority is not None:  # frames and SRMs come every step
             return tick.t + step
         return tick.t + step * max(1, int(getattr(self.welcome, "sync_every", 1) or 1))
 
@@ -263,8 +315,10 @@ class RsuApp:
             self.t_sim = now
             frames = self.ingest.newest_only(self.ingest.collect(float("inf"), wait=False)) if self.ingest else []
             statuses = [(a.status, a.wire_bytes) for a in self.link.collect()] if self.link is not None else []
-            self._publish(self.core.step(now, frames, statuses))
+            acks = self.link.collect_preempt() if self.link is not None else []
+            self._publish(self.core.step(now, frames, statuses, srms=self._take_heard(None), acks=acks))
             self._trace(self.core.take_records())
+            self._priority_out()
             self.ticks += tick is not None
             self.health.maybe_report()
 
@@ -276,6 +330,20 @@ class RsuApp:
             except Exception as exc:  # a closed or broken bus: count, keep the run going
                 self.publish_errors += 1
                 log.warning("could not publish on %s: %s", tx.key, exc)
+
+    def _priority_out(self) -> None:
+        """The preemption calls the core decided go to the controller link; its records to trace/<name>."""
+        for _, on in self.core.take_preempt_calls():
+            if self.link is not None:
+                self.link.set_preempt(on)
+        for rec in self.core.take_priority_records():
+            rec = {"record": "evsp", **rec}
+            try:
+                self.bus.publish(trace_key(self.name), json.dumps(rec, separators=(",", ":")).encode(), rec["t"])
+                self.trace_records += 1
+            except Exception as exc:
+                self.trace_errors += 1
+                log.debug("evsp trace record not published: %s", exc)
 
     def _trace(self, records) -> None:
         """Publish the frames' trace records on trace/<name>, each at its detect_end (when its detections were
@@ -362,6 +430,12 @@ class RsuApp:
                            "signal_groups": sp.signal_groups}
         if self.link is not None:
             out["controller_link"] = self.link.stats()
+        if core.priority is not None:
+            pc = core.priority.core
+            out["priority"] = {"srms": core.priority.srms, "ssm_sent": core.priority.sent,
+                               "rejections": dict(pc.rejections), "answered_rejected": dict(pc.answered_rejected),
+                               "cancellations": pc.cancellations, "expired": pc.expired,
+                               "other_messages": {str(k): v for k, v in core.priority.other_messages.items()}}
         if core.map is not None:
             out["map"] = {"sent": core.map.sent, "lanes": len(core.map.geometry.lanes)}
         out["bus"] = self.bus.stats() if self.bus is not None else None

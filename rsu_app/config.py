@@ -206,6 +206,24 @@ class SpatSettings:
 
 
 @dataclass
+class PrioritySettings:
+    enabled: bool = field(default=False, metadata=_key(
+        "serve signal requests (SRM): verify, arbitrate, ask the controller for preemption over the serial "
+        "link, answer in SSMs (needs the controller link of [spat] and a MAP)"))
+    preempt_groups: list[int] = field(default_factory=lambda: [4, 8], metadata=_key(
+        "signal groups the controller's preemption dwells on: a request for another group is rejected"))
+    expire_s: float = field(default=2.5, metadata=_key(
+        "a request not renewed for this long (simulated s) ends and releases the call", positive=True))
+    ssm_rate_hz: float = field(default=10.0, metadata=_key("SSM messages per second while requests are known",
+                                                           positive=True, high=100.0))
+    trust_anchor: str | None = field(default=None, metadata=_key(
+        "certificate of the CA the requesting vehicles' certificates chain to (default: "
+        "<pki_dir>/v2i-scenario-ca.cert)"))
+    max_age_s: float = field(default=0.5, metadata=_key("an SRM generated longer ago than this is refused",
+                                                        positive=True))
+
+
+@dataclass
 class MapSettings:
     enabled: bool = field(default=True, metadata=_key(
         "broadcast a MAP of the intersection the master describes (needs a [world] in the scenario)"))
@@ -255,6 +273,7 @@ class Settings:
     spat: SpatSettings = field(default_factory=SpatSettings)
     map: MapSettings = field(default_factory=MapSettings)
     v2x: V2xSettings = field(default_factory=V2xSettings)
+    priority: PrioritySettings = field(default_factory=PrioritySettings)
     health: HealthSettings = field(default_factory=HealthSettings)
 
     # -- derived ------------------------------------------------------------------------------------

@@ -14,6 +14,13 @@ answers. Because the master sends an answer's bytes before it publishes the
 next tick, the answers `collect()` returns at a tick are the ones the
 controller had finished by then: the app dates them by that tick.
 
+Preemption (`set_preempt(on)`): the app asks for the emergency-vehicle call
+(AB3418 SetPreempt, this project's 0x9B) and the link sends that frame in place
+of the next poll, so it travels the same RS-232 line (its bytes cost wire time
+in the controller's UART model) and its acknowledgement comes back the same
+way; `collect_preempt()` returns the acknowledgements with the frame sizes, so
+the app can charge the request's wire time to the request-to-green chain.
+
 Every problem is counted and logged, never raised: bad frames by kind (garbage,
 truncated, FCS, oversize), error answers, answers of the wrong type, polls
 without an answer within `answer_timeout_s` (wall), disconnects. After three
@@ -43,6 +50,15 @@ def serial_env(name: str) -> str:
 
 
 @dataclass
+class PreemptAck:
+    on: bool               # the call that was acknowledged
+    request_bytes: int     # framed bytes of the SetPreempt request on the line
+    answer_bytes: int      # framed bytes of the acknowledgement
+    ok: bool               # False: the controller answered with an error
+    wall: float            # time.monotonic() when the acknowledgement was complete
+
+
+@dataclass
 class StatusAnswer:
     status: ab3418.LongStatus8 | ab3418.ShortStatus
     wire_bytes: int        # framed bytes of the answer on the line (its wire time: wire_bytes * 10 / baud)
@@ -64,6 +80,9 @@ class ControllerLink:
         self._port = None
         self._decoder = ab3418.FrameDecoder()
         self._answers: list[StatusAnswer] = []
+        self._preempt_wanted: bool | None = None    # a SetPreempt still to send (None: nothing to send)
+        self._preempt_in_flight: tuple[bool, int] | None = None  # (on, request bytes) awaiting its answer
+        self._preempt_acks: list[PreemptAck] = []
         self._outstanding_since: float | None = None
         self._consecutive_timeouts = 0
         self.lost = False
@@ -102,6 +121,20 @@ class ControllerLink:
             out, self._answers = self._answers, []
         return out
 
+    def set_preempt(self, on: bool) -> None:
+        """Ask for (True) or release (False) the controller's emergency-vehicle preemption: the SetPreempt frame
+        goes out in place of the next poll (right away when nothing is in flight)."""
+        with self._lock:
+            self._preempt_wanted = bool(on)
+            if self._port is not None and self._outstanding_since is None:
+                self._send_locked()
+
+    def collect_preempt(self) -> list[PreemptAck]:
+        """SetPreempt acknowledgements read by `collect()` (call it first, at the same tick) since the last call."""
+        with self._lock:
+            out, self._preempt_acks = self._preempt_acks, []
+        return out
+
     # -- internals ------------------------------------------------------------------------------------
     def _connect_locked(self) -> bool:
         try:
@@ -120,6 +153,9 @@ class ControllerLink:
         self._port = port
         self._decoder = ab3418.FrameDecoder()
         self._outstanding_since = None
+        if self._preempt_in_flight is not None and self._preempt_wanted is None:
+            self._preempt_wanted = self._preempt_in_flight[0]  # lost with the old connection: send it again
+        self._preempt_in_flight = None
         self.counts["connects"] += 1
         return True
 
@@ -135,13 +171,22 @@ class ControllerLink:
     def _send_locked(self) -> None:
         if self._port is None or self._stop.is_set():
             return
+        frame, preempt = self.request, None
+        if self._preempt_wanted is not None:
+            preempt = self._preempt_wanted
+            frame = ab3418.request(ab3418.SET_PREEMPT, self.station, bytes([0x01 if preempt else 0x00]))
         try:
-            self._port.write(self.request)
+            self._port.write(frame)
         except Exception as exc:
             self._disconnected_locked(f"write failed: {exc}")
             return
         self._outstanding_since = time.monotonic()
-        self.counts["polls"] += 1
+        if preempt is None:
+            self.counts["polls"] += 1
+        else:
+            self._preempt_wanted = None
+            self._preempt_in_flight = (preempt, len(frame))
+            self.counts["preempt_requests"] += 1
 
     def _disconnected_locked(self, why: str) -> None:
         self.counts["disconnects"] += 1
@@ -168,6 +213,17 @@ class ControllerLink:
             self._on_frame_locked(event)
 
     def _on_frame_locked(self, frame: ab3418.Frame) -> None:
+        if self._preempt_in_flight is not None and frame.station == self.station and frame.msg_type in (
+                ab3418.response_type(ab3418.SET_PREEMPT), ab3418.error_type(ab3418.SET_PREEMPT)):
+            on, n_req = self._preempt_in_flight
+            ok = frame.msg_type == ab3418.response_type(ab3418.SET_PREEMPT)
+            self.counts["preempt_acks" if ok else "preempt_errors"] += 1
+            if not ok:
+                log.warning("controller link: the controller refused SetPreempt(%s): %s", on, frame.data.hex())
+            self._preempt_acks.append(PreemptAck(on, n_req, len(frame.encode()), ok, time.monotonic()))
+            self._preempt_in_flight = None
+            self._answered_locked()
+            return
         if frame.msg_type == ab3418.error_type(self.request_type):
             self.counts["error_answers"] += 1
             log.warning("controller link: the controller answered with an error: %s", frame.data.hex())

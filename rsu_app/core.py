@@ -68,13 +68,14 @@ import logging
 from collections import deque
 from dataclasses import dataclass, field
 
+from bridges import ab3418
 from rsu_app.bsm_stage import BsmStage, Transmission
 from rsu_app.camera import EPS, BusyGate
 from rsu_app.perception_stage import FrameResult, PerceptionStage, detection_record
 from rsu_app.timing import DETECT, LatencyModel
 
 log = logging.getLogger(__name__)
-READY, STATUS, FRAME, BSM, SPAT, MAP = range(6)
+READY, STATUS, FRAME, BSM, SPAT, MAP, ACK, SRM, SSM = range(9)
 # s: how far before the horizon work ahead stops. Only float noise separates the horizon (t + step) from the
 # time of the master's next frame; anything this close to it is done at the next tick, as without a horizon.
 AHEAD_MARGIN = 1e-9
@@ -94,9 +95,13 @@ class RsuCore:
     def __init__(self, latency: LatencyModel, perception: PerceptionStage | None = None,
                  bsm: BsmStage | None = None, spat=None, map_stage=None, *, t0: float | None = None,
                  bsm_rate_hz: float = 10.0, spat_rate_hz: float = 10.0, map_rate_hz: float = 1.0,
-                 realtime: bool = False, trace_detections: bool = False, sdsm=None):
+                 realtime: bool = False, trace_detections: bool = False, sdsm=None, priority=None,
+                 ssm_rate_hz: float = 10.0):
         self.latency, self.perception, self.bsm, self.spat, self.map = latency, perception, bsm, spat, map_stage
         self.sdsm = sdsm  # SdsmStage: one SDSM per slot with every track (beside or instead of the BSMs)
+        self.priority = priority  # rsu_app.priority_stage.PriorityStage: SRMs in, preemption calls and SSMs out
+        self.preempt_calls: list[tuple[float, bool]] = []  # (t, on) for the controller link, drained by the app
+        self.priority_records: list[dict] = []  # EVSP trace records ("srm", "preempt", "status"), by the app
         self.realtime = realtime
         self.trace_detections = trace_detections
         self.records: list[dict] = []  # trace records not yet taken by the app, in detect_end order
@@ -110,7 +115,8 @@ class RsuCore:
         self.t = float("-inf")  # events up to here are done
         self.tracks_seen: set[int] = set()
         self._periods = [(kind, 1.0 / rate) for kind, stage, rate in ((SPAT, spat, spat_rate_hz),
-                                                                      (MAP, map_stage, map_rate_hz)) if stage]
+                                                                      (MAP, map_stage, map_rate_hz),
+                                                                      (SSM, priority, ssm_rate_hz)) if stage]
         if t0 is not None:
             self._start_clocks(t0)
 
@@ -124,7 +130,8 @@ class RsuCore:
         heapq.heappush(self._events, (t, kind, next(self._order), payload))
 
     # -- the one entry point ---------------------------------------------------------------------------
-    def step(self, t: float, frames=(), statuses=(), horizon: float | None = None) -> list[Transmission]:
+    def step(self, t: float, frames=(), statuses=(), horizon: float | None = None, srms=(),
+             acks=()) -> list[Transmission]:
         """Everything up to simulation time t. `frames`: camera frames of time <= t (realtime: processed
         now); `statuses`: (status, wire_bytes) answers of the controller that arrived by t. `horizon`
         (lockstep; ignored in realtime): no input still to come has a time before it, so the events before it
@@ -133,6 +140,11 @@ class RsuCore:
             self._start_clocks(t)
         for status, wire_bytes in statuses:
             self._push(t, STATUS, (status, wire_bytes))
+        for ack in acks:  # SetPreempt acknowledgements (rsu_app.controller_link.PreemptAck), dated by the tick
+            self._push(t, ACK, ack)
+        for payload, t_arrival in srms:  # frames heard on the air: at their arrival, never before done work
+            when = max(t_arrival, t) if self.realtime else min(max(t_arrival, self.t), t)
+            self._push(when, SRM, payload)
         for frame in frames:
             when = max(frame.t, t) if self.realtime else min(max(frame.t, self.t), t)  # never before done work
             self._push(when, FRAME, frame)
@@ -150,6 +162,12 @@ class RsuCore:
                 self._ready(when, payload)
             elif kind == STATUS:
                 self.spat.on_status(payload[0], payload[1], when) if self.spat is not None else None
+                if self.priority is not None:
+                    self._priority_status(when, *payload)
+            elif kind == ACK:
+                self._priority_ack(when, payload)
+            elif kind == SRM:
+                self._priority_srm(when, payload)
             elif kind == FRAME:
                 self._frame(when, payload)
             elif kind == BSM:
@@ -158,9 +176,11 @@ class RsuCore:
                 out += self._bsm_slot(base)
                 n = self._next_slot(start, self.bsm_period, n, t)
                 self._push(start + n * self.bsm_period, BSM, (start, n))
-            elif kind in (SPAT, MAP):
+            elif kind in (SPAT, MAP, SSM):
                 start, period, n = payload
-                stage = self.spat if kind == SPAT else self.map
+                stage = {SPAT: self.spat, MAP: self.map, SSM: self.priority}[kind]
+                if kind == SSM:
+                    self._priority_events(base, self.priority.core.step(base))
                 tx = stage.send(base)
                 if tx is not None:
                     out.append(tx)
@@ -168,6 +188,50 @@ class RsuCore:
                 self._push(start + n * period, kind, (start, period, n))
         self.t = done
         return out
+
+    # -- signal preemption (EVSP) ------------------------------------------------------------------------------
+    def _priority_srm(self, when: float, payload: bytes) -> None:
+        if self.priority is None:
+            return
+        srm = self.priority.receive(payload, when)
+        if srm is not None:
+            self.priority_records.append({"kind": "srm", "t": when, "vehicle": str(srm.requestor.vehicle_id),
+                                          "types": [r.request_type for r in srm.requests]})
+            self._priority_events(when, self.priority.core.step(when))
+
+    def _priority_events(self, when: float, events) -> None:
+        if events.preempt is not None:
+            self.preempt_calls.append((when, events.preempt))
+            self.priority_records.append({"kind": "preempt_call", "t": when, "on": events.preempt})
+        for r, status in events.changes:
+            self.priority_records.append({"kind": "status", "t": when, "vehicle": str(r.vehicle_id),
+                                          "request": r.request_id, "status": status, "reason": r.reason,
+                                          "signal_group": r.signal_group})
+
+    def _priority_ack(self, when: float, ack) -> None:
+        if self.priority is None:
+            return
+        baud = self.spat.baud if self.spat is not None else None
+        wire = None if not baud else (ack.request_bytes + ack.answer_bytes) * 10 / baud
+        self.priority_records.append({"kind": "preempt_ack", "t": when, "on": ack.on, "ok": ack.ok,
+                                      "request_bytes": ack.request_bytes, "answer_bytes": ack.answer_bytes,
+                                      "wire_s": wire})
+        if ack.ok:
+            self.priority.core.on_preempt_sent(ack.on, when)
+            self._priority_events(when, self.priority.core.step(when))
+
+    def _priority_status(self, when: float, status, wire_bytes: int) -> None:
+        t_status = self.spat.t_status if self.spat is not None else when
+        self.priority.core.on_controller(status.greens, bool(status.status & ab3418.STATUS_PREEMPT), t_status)
+        self._priority_events(when, self.priority.core.step(when))
+
+    def take_preempt_calls(self) -> list[tuple[float, bool]]:
+        calls, self.preempt_calls = self.preempt_calls, []
+        return calls
+
+    def take_priority_records(self) -> list[dict]:
+        records, self.priority_records = self.priority_records, []
+        return records
 
     def take_records(self) -> list[dict]:
         """The trace records made since the last call (the app publishes them; nobody else keeps them)."""

@@ -78,6 +78,8 @@ RULES: dict[str, tuple[frozenset[str] | None, str]] = {
     "examples": (frozenset({"examples", "bridges"}),
                  "examples/ import only bridges of the project: the guide's app is built the way a new app is "
                  "(docs/writing-an-app.md)"),
+    "obu_app": (frozenset({"obu_app", "bridges"}),
+                "obu_app/ imports only bridges of the project (a participant like the apps)"),
 }
 BUNDLED_RULE = "a bridges module bundled into an FMU (fmus._bundled.<name>) imports only the standard library"
 BUNDLED_PACKAGE = "fmus._bundled"  # exists only inside a built FMU (fmus/builder.py)

@@ -48,6 +48,8 @@ from bridges.security.oer import PROTOCOL_VERSION, NonCanonicalEncoding, Securit
 PSID_BSM = 0x20            # SAE J2945/1 basic safety message
 PSID_SURROGATE_BSM = 0x7F  # test PSID SAE J2945/8 names for surrogate BSMs (testing only)
 PSID_SPAT_MAP = 0x82       # IEEE 1609.12 intersection safety and awareness (p-encoded 80-02): SPaT, MAP
+PSID_SSM = 0x204095        # IEEE 1609.12 traffic signal priority status (2113685, p-encoded E0-00-00-15): SSM
+PSID_SRM = 0x204096        # IEEE 1609.12 traffic signal request (2113686, p-encoded E0-00-00-16): SRM
 
 
 class Rejection(str, enum.Enum):

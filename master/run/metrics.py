@@ -40,6 +40,7 @@ from typing import Any, Iterable
 
 from bridges.v2x import CAN_APPLIED, CAN_COMMAND, STAGES, stage_ms, stamp_ns, stamp_s
 from master.stats import percentiles
+from master.run.preemption import preemption_metrics
 
 METRICS = "metrics.json"
 TRACE = "trace.jsonl"
@@ -234,6 +235,10 @@ def run_metrics(run_dir: Path, meta: dict[str, Any]) -> dict[str, Any] | None:
     out["rtf"] = (meta.get("realtime") or {}).get("target_rtf") if meta.get("mode") == "realtime" else None
     out["latency_policy"] = _policy(run_dir)
     out["clock_bound_ms"] = clock_bounds(meta)
+    if any(r.get("record") == "evsp" for r in traces):  # the time series is read only for a preemption run
+        preemption = preemption_metrics(run_dir, traces, read_csv(run_dir / "timeseries.csv"))
+        if preemption is not None:
+            out["preemption"] = preemption
     return out
 
 

@@ -26,6 +26,7 @@ def verdict_lines(metrics: dict[str, Any]) -> list[str]:
         out.append("min gap " + (f"{gap:.2f} m" if gap is not None else "n/a")
                    + ", min TTC " + (f"{ttc:.2f} s" if ttc is not None else "n/a")
                    + ", PET " + (f"{pet:.2f} s" if pet is not None else "n/a"))
+    out += preemption_lines(metrics.get("preemption"))
     e2e = metrics.get("latency_ms", {}).get("e2e", {})
     if e2e.get("n"):
         out.append(f"E2E latency p50 {e2e['p50']:.1f} ms, p99 {e2e['p99']:.1f} ms (n = {e2e['n']}; "
@@ -38,6 +39,24 @@ def verdict_lines(metrics: dict[str, Any]) -> list[str]:
             out.append("  stages stamped by an app and the master are good to the app's clock-offset bound: "
                        + ", ".join(f"{app} ±{ms:.2f} ms" for app, ms in bounds.items())
                        + " (E2E is on the master's clock alone)")
+    return out
+
+
+def preemption_lines(p: dict[str, Any] | None) -> list[str]:
+    """Signal preemption (metrics.json's `preemption`): granted or not, request to green, the ev, red entries."""
+    if not p:
+        return []
+
+    def num(value, fmt):
+        return "n/a" if value is None else format(value, fmt)
+
+    out = [f"preemption: {'granted' if p.get('granted') else 'not granted' if p.get('requested') else 'not requested'}"
+           + (f" — SRM to green {p['srm_to_green_ms']:.0f} ms" if p.get("srm_to_green_ms") is not None else "")
+           + f"; ev {p.get('ev') or '?'} delay {num(p.get('ev_delay_s'), '.2f')} s, stopped "
+           + f"{num(p.get('ev_stopped_s'), '.2f')} s; red violations {p.get('red_violations', 0)}"]
+    stages = {k: v for k, v in (p.get("stages_ms") or {}).items() if k != "serial_request_bytes" and v is not None}
+    if stages:
+        out.append("  stages: " + ", ".join(f"{k} {v:.1f} ms" for k, v in stages.items()))
     return out
 
 

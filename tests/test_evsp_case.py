@@ -1,0 +1,96 @@
+"""EVSP end to end, as a user runs it: `v2i run` on scenarios/evsp.toml and evsp_no_preemption.toml, the ev's OBU
+app and the RSU app started by the master as processes on zenoh (loopback), in lockstep under `fixed`.
+The request travels SRM (air) -> RSU (verify, arbitrate) -> AB3418 SetPreempt over the RS-232 model ->
+controller -> SSM + SPaT; at 1200 baud the serial leg costs what the RS-232 model says (ANCHORS S1). The
+shipped files are copied into a temporary folder (the first run makes the keys there) and each run gets a
+free port."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from test_rsu_app_support import free_port
+
+ROOT = Path(__file__).resolve().parent.parent
+V2I = Path(sys.executable).with_name("v2i")
+pytest.importorskip("zenoh")
+pytest.importorskip("pybullet")
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory, fmu_dir):
+    root = tmp_path_factory.mktemp("evsp") / "scenarios"
+    (root / "apps").mkdir(parents=True)
+    for name in ("evsp.toml", "evsp_no_preemption.toml"):
+        shutil.copy(ROOT / "scenarios" / name, root / name)
+    for name in ("rsu_evsp.toml", "ev_obu.toml"):
+        shutil.copy(ROOT / "scenarios" / "apps" / name, root / "apps" / name)
+    return root
+
+
+def run(study: Path, base: str, out: Path, baud: int | None = None) -> dict:
+    variant = study / f"run-{out.name}.toml"
+    extra = ""
+    if baud:
+        extra = f"""
+[fmus.tlc.parameters]
+baud = {float(baud)}
+[participants.rsu]
+command = ["{{python}}", "-m", "rsu_app", "--config", "apps/rsu_evsp.toml", "--set", "spat.baud={baud}"]
+"""
+    variant.write_text(f"""
+[scenario]
+extends = "{base}"
+[bridge]
+listen = ["tcp/127.0.0.1:{free_port()}"]
+{extra}""")
+    proc = subprocess.run([str(V2I), "run", str(variant), "--out", str(out), "--quiet", "--no-report"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return {"metrics": json.loads((out / "metrics.json").read_text()),
+            "series": (out / "timeseries.csv").read_bytes(), "dir": out}
+
+
+@pytest.fixture(scope="module")
+def runs(study, tmp_path_factory):
+    out = tmp_path_factory.mktemp("evsp-runs")
+    return {"evsp": run(study, "evsp.toml", out / "evsp"),
+            "none": run(study, "evsp_no_preemption.toml", out / "none"),
+            "1200": run(study, "evsp.toml", out / "evsp-1200", baud=1200)}
+
+
+def test_the_ev_gets_its_green_before_it_reaches_the_stop_line(runs):
+    p = runs["evsp"]["metrics"]["preemption"]
+    assert p["requested"] and p["granted"] and p["signal_group"] == 8 and p["ev"] == "ev"
+    # preemption entry: min(min green, 3 s) + yellow 3.3 s + red clearance 1.2 s at most, plus the request's legs
+    assert 0 < p["srm_to_green_ms"] <= (3.0 + 3.3 + 1.2) * 1000 + 200
+    assert p["red_violations"] == 0 and p["ev_stopped_s"] == 0.0
+    assert p["ev_delay_s"] < 1.0
+    s = p["stages_ms"]
+    assert s["srm_air"] > 0 and s["serial_round_trip"] >= s["serial_wire"] > 0 and s["ssm"] >= 0
+    assert s["serial_wire"] == pytest.approx((9 + 8) * 10 / 9600 * 1000, abs=1e-3)   # ANCHORS S1
+
+
+def test_without_the_request_the_controller_keeps_its_plan_and_the_ev_meets_red(runs):
+    p = runs["none"]["metrics"]["preemption"]
+    assert not p["requested"] and not p["granted"] and p["srm_to_green_ms"] is None
+    # the ev (driven at constant speed: no driver model stops it) enters on the north-south green's red
+    assert p["red_violations"] == 1 and p["red_violators"] == ["ev"]
+
+
+def test_the_serial_leg_costs_what_the_rs232_model_says(runs):
+    fast, slow = runs["evsp"]["metrics"]["preemption"], runs["1200"]["metrics"]["preemption"]
+    assert slow["granted"]
+    wire_fast, wire_slow = fast["stages_ms"]["serial_wire"], slow["stages_ms"]["serial_wire"]
+    assert wire_fast == pytest.approx((9 + 8) * 10 / 9600 * 1000, abs=1e-3)     # metrics round to 1 µs
+    assert wire_slow == pytest.approx((9 + 8) * 10 / 1200 * 1000, abs=1e-3)
+    # the acknowledgement comes after both frames' wire time and the controller's 10 ms turnaround (ANCHORS S7),
+    # later still when a status poll was on the line ahead of it
+    for p, wire in ((fast, wire_fast), (slow, wire_slow)):
+        assert p["stages_ms"]["serial_round_trip"] >= wire + 10.0 - 10.0   # less one 10 ms step: tick-dated
+
