@@ -295,7 +295,7 @@ class RsuApp:
         step = float(getattr(tick, "step", 0.0) or 0.0)
         if not step > 0:
             return None
-        if self.ingest is not None or self.core.priority is not None:  # frames and SRMs come every step
+        if self.ingest is not None or (self.core is not None and self.core.priority is not None):  # every step
             return tick.t + step
         return tick.t + step * max(1, int(getattr(self.welcome, "sync_every", 1) or 1))
 
