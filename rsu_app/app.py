@@ -240,6 +240,8 @@ class RsuApp:
             self.part = Participant(self.bus, self.name, s.role, publishes=publishes)
             self.welcome = self.part.join(timeout=s.bus.join_timeout_s)
             if self.link is not None:
+                if self.welcome.mode == "lockstep":
+                    self.link.follow(lambda: self.t_sim)  # the controller's answers come at simulated times
                 self.link.start()
             self.core = self._build_core(self.part.world)
             self.health = Health(self, s.health.stats_every_s)

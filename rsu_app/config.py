@@ -195,7 +195,7 @@ class SpatSettings:
         "status request: long (GetLongStatus8, with times to change) or short (GetShortStatus, greens only)",
         choices=POLLS))
     answer_timeout_s: float = field(default=1.0, metadata=_key(
-        "wall seconds without an answer before a poll counts as lost", positive=True))
+        "seconds without an answer before a poll counts as lost (wall; simulated in lockstep)", positive=True))
     rate_hz: float = field(default=10.0, metadata=_key("SPaT messages per second", positive=True, high=100.0))
     max_age_s: float = field(default=0.5, metadata=_key(
         "no SPaT from a controller status older than this (simulated s): a lost controller stops the SPaT",

@@ -23,8 +23,14 @@ the app can charge the request's wire time to the request-to-green chain.
 
 Every problem is counted and logged, never raised: bad frames by kind (garbage,
 truncated, FCS, oversize), error answers, answers of the wrong type, polls
-without an answer within `answer_timeout_s` (wall), disconnects. After three
+without an answer within `answer_timeout_s`, disconnects. After three
 unanswered polls in a row the controller counts as lost until it answers again.
+
+The timeout runs on the clock the controller lives in: wall time on a real line
+and in a realtime run, the app's simulation time in lockstep (`follow(clock)`).
+In lockstep a wall-clock timeout would count a master that is merely slow (a
+loaded machine, a camera frame being rendered) as a silent controller, and the
+duplicate request it then sends would change what goes over the wire.
 """
 from __future__ import annotations
 
@@ -74,6 +80,7 @@ class ControllerLink:
         self.request = ab3418.request(self.request_type, station)
         self.answer_timeout_s = answer_timeout_s
         self._opener = opener
+        self._clock = time.monotonic  # what answer_timeout_s is measured on (follow() changes it)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -108,6 +115,14 @@ class ControllerLink:
             self._thread.join(timeout=2.0)
         with self._lock:
             self._close_port_locked()
+
+    def follow(self, clock) -> None:
+        """Measure the answer timeout on `clock` (a callable returning seconds; NaN while it has no time yet,
+        which never times out) in place of wall time: in lockstep, the app's simulation time."""
+        with self._lock:
+            self._clock = clock
+            if self._outstanding_since is not None:
+                self._outstanding_since = float("nan")  # dated again at the clock's first reading
 
     def stats(self) -> dict:
         with self._lock:
@@ -180,7 +195,7 @@ class ControllerLink:
         except Exception as exc:
             self._disconnected_locked(f"write failed: {exc}")
             return
-        self._outstanding_since = time.monotonic()
+        self._outstanding_since = self._clock()
         if preempt is None:
             self.counts["polls"] += 1
         else:
@@ -273,8 +288,10 @@ class ControllerLink:
                 if self._port is not port:
                     continue
                 self._pump_locked()
-                since = self._outstanding_since
-                if self._port is not None and (since is None or time.monotonic() - since > self.answer_timeout_s):
+                since, now = self._outstanding_since, self._clock()
+                if since is not None and since != since and now == now:  # sent before the clock had a time
+                    self._outstanding_since = since = now
+                if self._port is not None and (since is None or now - since > self.answer_timeout_s):
                     if since is not None:
                         self.counts["timeouts"] += 1
                         self._consecutive_timeouts += 1
