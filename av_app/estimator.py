@@ -156,3 +156,43 @@ class CollisionEstimator:
         gap = np.where(hi < a, a - hi, np.where(lo > b, lo - b, -(end - start)))
         return Conflict(o.id, o.emergency, ttc, float(gap.min()), float(path.s[has][0]), float(occ.a[has].min()),
                         float(occ.b[has].max()))
+
+    @staticmethod
+    def go_gap(occ: Occupancy, tau_ego: np.ndarray, path: PathSamples, merge_heading: float,
+               merge_length: float) -> "GoGaps":
+        """The smallest time gaps between the ego's passage (on timing tau_ego) and the object's: over the
+        stations of the conflict zone and of the merge into the object's lane (up to `merge_length` past the
+        first station, from the zone on, where the path heads within `merge_heading` rad of the object),
+        split by who passes first; and over the stations beyond (the object follows the ego in its lane, or
+        the ego follows it). None where no such station is occupied (or the ego does not get there)."""
+        o = occ.object
+        has = np.isfinite(occ.a)
+        mid = (tau_ego[1:] + tau_ego[:-1]) / 2
+        lo = np.concatenate([tau_ego[:1], mid])
+        hi = np.concatenate([mid, tau_ego[-1:]])
+        has &= np.isfinite(lo)
+        if not has.any():
+            return GoGaps(None, None, None, False)
+        first = int(np.flatnonzero(has)[0])
+        aligned = np.abs(wrap(path.yaw - o.yaw)) <= merge_heading
+        aligned[:first] = False
+        through = has.copy()
+        if aligned.any():
+            through &= path.s <= path.s[int(np.flatnonzero(aligned)[0])] + merge_length
+        start, end = np.maximum(lo, occ.a), np.minimum(hi, occ.b)
+        with np.errstate(invalid="ignore"):
+            gap = np.where(hi < occ.a, occ.a - hi, np.where(lo > occ.b, lo - occ.b, -(end - start)))
+            behind = lo > occ.b  # the object has left the station before the ego gets there
+        after = has & ~through
+        pick = lambda m: float(gap[m].min()) if m.any() else None  # noqa: E731
+        return GoGaps(pick(through & ~behind), pick(through & behind), pick(after), bool((after & ~behind).any()))
+
+
+@dataclass(frozen=True)
+class GoGaps:
+    """What going on would leave (CollisionEstimator.go_gap), s."""
+
+    ahead: float | None  # through the zone and the merge, where the ego passes first (negative: together)
+    behind: float | None  # ... where the object passes first and the ego follows it
+    follow: float | None  # beyond the merge, in the object's lane
+    leads: bool  # beyond the merge the ego is ahead of the object (which follows it)
