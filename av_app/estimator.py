@@ -28,7 +28,7 @@ import numpy as np
 
 from av_app.config import PlannerSection, VehicleSection
 from av_app.fusion import FusedObject
-from av_app.geometry import overlap_boxes, to_frame, wrap
+from av_app.geometry import corners, overlap_boxes, to_frame, wrap
 from av_app.route import PathSamples
 
 
@@ -132,6 +132,23 @@ class CollisionEstimator:
             if standing:
                 b[si] = np.inf  # a standing object stays beyond the horizon
         return Occupancy(o, a, b)
+
+    def blocked(self, o: FusedObject, pose: tuple[float, float, float], lane_shift: float = 0.0) -> float:
+        """The fraction (0..1) of the object's corridor width that the ego, standing at rear-axle `pose`,
+        would block: the corridor is the band the object sweeps ahead of its rear along its heading, its
+        width wide (plus the margin on each side), its centre line `lane_shift` m to the object's left (the
+        lane's centre where the map knows it: a lidar box's centre is biased toward the sensor). 0: the
+        object passes the standing ego without touching it; 1: the ego stands across its whole way."""
+        v, m = self.vehicle, self.cfg.margin_m / 2
+        off = v.length / 2 - v.rear_overhang
+        box = corners(pose[0] + off * math.cos(pose[2]), pose[1] + off * math.sin(pose[2]), pose[2], v.length,
+                      v.width)
+        u, lat = to_frame(box[:, 0], box[:, 1], (o.x, o.y, o.yaw))
+        if float(np.max(u)) < -o.length / 2:
+            return 0.0  # wholly behind the object
+        half = o.width / 2 + m
+        lo, hi = lane_shift - half, lane_shift + half
+        return max(0.0, min(float(np.max(lat)), hi) - max(float(np.min(lat)), lo)) / (2 * half)
 
     # -- measures --------------------------------------------------------------------------------------
     @staticmethod

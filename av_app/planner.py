@@ -56,6 +56,8 @@ HYSTERESIS_S = 0.5
 GO_HYSTERESIS_S = 0.3  # s of gap a decision to go may lose before it is reconsidered
 PREVIEW_S = 0.5
 STOP_SLACK_M = 0.2
+BLOCK_LEAST = 0.5  # past the commit point, a stop blocking less than this fraction of the object's corridor beats
+# going on into it (it keeps its lane and passes the ego's nose; going on, the ego is in its way whole)
 ESCAPE_HOLD = 1.0  # m/s: ahead of a follower, the ego keeps its speed up to this much above the follower's  # past a stop point, the vehicle must still stand this far before the zone  # the longitudinal controller follows the profile's slope over this much time ahead
 
 
@@ -64,6 +66,7 @@ class Stop:
     s: float  # station (rear axle) where the vehicle must stand
     reason: str  # yield | red | route_end
     cause: str = ""  # object id / signal group
+    past: float | None = None  # how far past the point the vehicle may still come to rest (None: the stop margin)
 
 
 @dataclass(frozen=True)
@@ -97,15 +100,20 @@ def stop_decel(v0: float, s0: float, zone_in: float, stop_margin: float, grown: 
 def commit_or_yield(object_id: str, v0: float, s0: float, zone_in: float, go_gap: float | None, *,
                     pet_margin: float, merge_gap: float, stop_margin: float, decel_comfort: float,
                     max_decel: float, going: bool = False, follow_gap: float | None = None,
-                    follow_need: float = 0.0, behind_gap: float | None = None, grown: float = 0.0) -> Choice:
+                    follow_need: float = 0.0, behind_gap: float | None = None, grown: float = 0.0,
+                    blocked: float | None = None, stood: bool = False) -> Choice:
     """Yield (stop before the zone) or go on (clear it), for one object whose PET on the free profile is short.
 
     In this order: a yield the vehicle can make comfortably is taken unless going on clears the object by
     the full PET margin anyway (or it has already decided to go and going on is still safe); then going on
     where it is safe (gap >= merge_gap through the zone and the merge, and the object, not braking, stays
     `follow_need` s behind the ego speeding up ahead of it: follow_gap); then a yield as hard as the vehicle can brake, while stopping before
-    the zone is possible at all; past that commit point, going on even though it is not safe, because
-    standing in the zone is worse.
+    the zone is possible at all. Past that commit point, with going on unsafe too, the choice that least
+    blocks the object's way (`blocked`: the fraction of its corridor the ego would block standing where
+    braking at the vehicle's limit leaves it): a stop that leaves its corridor free; a stop that blocks
+    less than BLOCK_LEAST of it when going on is predicted to meet it (a gap below 0: the ego in its lane
+    when it gets there, the whole corridor blocked, and hit from behind or the side); otherwise going on,
+    because standing across its lane is the worst of the choices.
     """
     need = stop_decel(v0, s0, zone_in, stop_margin, grown)
     slack = GO_HYSTERESIS_S if going else 0.0  # a decision to go is not undone by a gap a plan's noise shorter
@@ -124,6 +132,15 @@ def commit_or_yield(object_id: str, v0: float, s0: float, zone_in: float, go_gap
         return Choice(object_id, "go", need, go_gap, zone_in, "merge_ahead")
     if need <= max_decel:
         return Choice(object_id, "yield", need, go_gap, zone_in, "hard_yield")
+    # past the last commit point with going on unsafe: the choice that least blocks the object's way
+    if blocked is not None:
+        if blocked <= 0.0:  # braking at the limit leaves the ego short of the object's own corridor
+            return Choice(object_id, "yield", need, go_gap, zone_in, "stop_clear_of_path")
+        collides = any(g is not None and g < 0.0 for g in (go_gap, behind_gap, follow_gap))
+        # going on meets it, standing only grazes its way; and once stopping for it, it stands until going on
+        # is safe (setting off again half-way through the object's passage, toward its way, never blocks less)
+        if stood or (collides and blocked < BLOCK_LEAST):
+            return Choice(object_id, "yield", need, go_gap, zone_in, "least_conflict_stop")
     return Choice(object_id, "go", need, go_gap, zone_in, "committed_unsafe")
 
 
@@ -193,6 +210,7 @@ class Planner:
         self.yielding: set[str] = set()
         self.zones: dict[str, float] = {}  # object id -> its conflict zone's first station, while in conflict
         self.going: set[str] = set()  # objects the ego has decided to go on ahead of (or clear the zone before)
+        self.stands: dict[str, float] = {}  # object id -> where the ego stops short of its way (least conflict)
         self.path_length = max(30.0, cfg.route.cruise_speed * cfg.planner.horizon_s * 1.5 + 10.0)
 
     def plan(self, t: float, pose: tuple[float, float, float], v: float, objects: list[FusedObject],
@@ -213,7 +231,7 @@ class Planner:
         tau_go = None  # the ego's timing if it goes on (computed for the first conflict that needs it)
         ego = self.estimator.ego_boxes(path)
         conflicts, stops, choices = [], list(base_stops), []
-        yielding, going, go_speed, zones = set(), set(), {}, {}
+        yielding, going, go_speed, zones, stands = set(), set(), {}, {}, {}
         for o in objects:
             if self.lanes is not None:
                 o = self.lanes.snap(o)
@@ -262,14 +280,33 @@ class Planner:
                                  max_decel=cfg.vehicle.max_decel, going=o.id in self.going, follow_gap=follow,
                                  follow_need=pl.merge_gap_m / max(o.speed, 1.0), behind_gap=gaps.behind,
                                  grown=2 * pl.margin_m)
+            if ch.why == "committed_unsafe":
+                # where braking at the limit leaves it (a tenth of a second to react, the controller's slack);
+                # once chosen the point is kept (recomputed each plan it would creep on by that slack)
+                s_stand = self.stands.get(o.id, s0 + v0 * v0 / (2 * cfg.vehicle.max_decel) + v0 * pl.dt_s
+                                          + STOP_SLACK_M)
+                stand = self.route.at(np.array([s_stand]))
+                shift = self.lanes.centre_shift(o) if self.lanes is not None else 0.0
+                blocked = self.estimator.blocked(o, (float(stand[0][0]), float(stand[1][0]), float(stand[2][0])),
+                                                 shift)
+                ch = commit_or_yield(o.id, v0, s0, zone_in, gaps.ahead, pet_margin=margin, merge_gap=need_gap,
+                                     stop_margin=pl.stop_margin_m, decel_comfort=cfg.control.decel_comfort,
+                                     max_decel=cfg.vehicle.max_decel, going=o.id in self.going,
+                                     follow_gap=follow, follow_need=pl.merge_gap_m / max(o.speed, 1.0),
+                                     behind_gap=gaps.behind, grown=2 * pl.margin_m, blocked=blocked,
+                                     stood=o.id in self.stands)
             go_speed[o.id] = cruise if leads else cfg.route.cruise_speed
             choices.append(ch)
-            if ch.action == "yield":
+            if ch.why in ("stop_clear_of_path", "least_conflict_stop"):
+                stops.append(Stop(s_stand, "yield", o.id, past=STOP_SLACK_M))  # no margin beyond: the object's way
+                stands[o.id] = s_stand
+                yielding.add(o.id)
+            elif ch.action == "yield":
                 stops.append(Stop(zone_in - pl.stop_margin_m, "yield", o.id))
                 yielding.add(o.id)
             else:
                 going.add(o.id)
-        self.yielding, self.going, self.zones = yielding, going, zones
+        self.yielding, self.going, self.zones, self.stands = yielding, going, zones, stands
         go = bool(going) and not yielding
         fast = [go_speed.get(k, cfg.route.cruise_speed) for k in going] if go else []
         fast += [min(v, pl.escape_speed_max) for v in escape]
@@ -317,7 +354,8 @@ class Planner:
             if d > 0.05 and v0 * v0 / (2 * d) >= cfg.control.decel_stop - 1e-9:
                 a = min(a, -v0 * v0 / (2 * d))  # on (or past) the stop profile: exactly what stopping needs
             elif d <= 0.05 and v0 > 0.0:  # at or past the stop point: stop within the margin left
-                a = min(a, -v0 * v0 / (2 * max(d + margin - STOP_SLACK_M, 0.1)))
+                beyond = margin - STOP_SLACK_M if st.past is None else st.past
+                a = min(a, -v0 * v0 / (2 * max(d + beyond, 0.1)))
         a += cfg.control.speed_kp * min(v_plan[0] - v0, 0.0)  # only brakes: the profile starts at v0 otherwise
         road = cfg.vehicle.road_load_c0 + cfg.vehicle.road_load_c2 * v0 * v0 if v0 > 0.05 else 0.0
         accel = min(max(a + road, -cfg.vehicle.max_decel), a_max)

@@ -114,3 +114,72 @@ def test_the_rsu_coverage_a_phantom_vehicle_would_need(distance, speed, safe):
     phantom = FusedObject("phantom", "v2x", 0.0, -distance, -1.75, 0.0, speed, 0.0, 4.5, 1.8)
     plan = Planner(cfg, route, LaneMap(7.0, 230.0)).plan(0.0, (float(x), float(y), float(yaw)), v, [phantom])
     assert (plan.decision in ("cruise", "go")) is safe, (plan.decision, plan.choices, plan.conflicts)
+
+
+# -- past the last commit point with going on unsafe: the least conflict -------------------------------------------
+PAST = station_for(MAX) + 0.05  # braking at the limit no longer stops before the zone
+
+
+def test_a_stop_that_leaves_the_objects_corridor_free_beats_an_unsafe_go():
+    ch = commit_or_yield("ev", V0, PAST, ZONE, 0.2, blocked=0.0, **KW)
+    assert (ch.action, ch.why) == ("yield", "stop_clear_of_path")
+
+
+@pytest.mark.parametrize("gap, blocked, why", [
+    (-0.2, 0.3, "least_conflict_stop"),   # going on meets it; standing grazes a third of its way
+    (-0.2, 0.8, "committed_unsafe"),      # standing across most of its way: going on is no worse
+    (0.5, 0.3, "committed_unsafe"),       # going on is short of the merge gap but does not meet it
+])
+def test_standing_in_the_objects_way_is_chosen_only_when_it_blocks_less_than_going_on(gap, blocked, why):
+    ch = commit_or_yield("ev", V0, PAST, ZONE, gap, blocked=blocked, **KW)
+    assert ch.why == why and ch.action == ("yield" if why.endswith("stop") else "go")
+    # a follower gap below 0 (it would close on the ego beyond the merge) is meeting it too
+    assert commit_or_yield("ev", V0, PAST, ZONE, 0.5, follow_gap=-0.1, blocked=0.3, **KW).why == "least_conflict_stop"
+
+
+def test_once_stopping_for_it_the_cav_stands_until_going_on_is_safe():
+    ch = commit_or_yield("ev", 0.0, ZONE + 1.5, ZONE, 0.3, blocked=0.9, stood=True, **KW)
+    assert (ch.action, ch.why) == ("yield", "least_conflict_stop")  # setting off toward its way blocks no less
+    assert commit_or_yield("ev", 0.0, ZONE + 1.5, ZONE, None, behind_gap=3.5, blocked=0.9, stood=True,
+                           **KW).why == "clear_ahead"  # it has passed
+
+
+def _object(x, y, yaw, width=1.8, length=4.5):
+    from av_app.fusion import FusedObject
+    return FusedObject("ev", "lidar", 0.0, x, y, yaw, 16.7, 0.0, length, width)
+
+
+def test_the_blocked_fraction_is_the_standing_footprints_share_of_the_corridor():
+    from av_app.config import PlannerSection, VehicleSection
+    from av_app.estimator import CollisionEstimator
+
+    veh, pl = VehicleSection(), PlannerSection()
+    est = CollisionEstimator(pl, veh)
+    front = veh.length - veh.rear_overhang  # rear axle to nose
+    half = 1.8 / 2 + pl.margin_m / 2  # the corridor: the ev's width and half the margin on each side
+    ev = _object(-30.0, -1.75, 0.0)  # eastbound in the lane centre
+    north = math.pi / 2
+    assert est.blocked(ev, (1.75, -1.75 - half - 0.05 - front, north)) == 0.0  # the nose short of it
+    into = 0.5
+    assert est.blocked(ev, (1.75, -1.75 - half + into - front, north)) == pytest.approx(into / (2 * half))
+    assert est.blocked(ev, (1.75, -4.0, north)) == 1.0  # across it
+    assert est.blocked(ev, (-40.0, -1.75, 0.0)) == 0.0  # behind it in its lane: its business
+    # the corridor is the lane's, not the lidar box's biased centre (0.9 m toward the sensor)
+    biased = _object(-30.0, -2.65, 0.0)
+    pose = (1.75, -1.75 - half + into - front, north)
+    assert est.blocked(biased, pose, 0.9) == pytest.approx(into / (2 * half))
+    assert est.blocked(biased, pose) > est.blocked(biased, pose, 0.9)
+
+
+@pytest.mark.parametrize("x, y, yaw, shift", [
+    (-30.0, -2.65, 0.0, 0.9),              # eastbound, its box biased south: the lane centre is 0.9 m left
+    (-2.0, -2.65, 0.0, 0.9),               # in the junction box its heading names the road
+    (30.0, 1.0, math.pi, -0.75),           # westbound north of the centre line: the centre at y = 1.75
+    (1.0, -30.0, math.pi / 2, -0.75),      # northbound: the centre at x = 1.75, to its right
+    (-30.0, -2.65, math.radians(60), 0.0),  # following neither road
+    (-30.0, -20.0, 0.0, 0.0),              # off the roads
+])
+def test_the_lane_centre_shift(x, y, yaw, shift):
+    from av_app.lanes import LaneMap
+
+    assert LaneMap(7.0, 120.0).centre_shift(_object(x, y, yaw)) == pytest.approx(shift)
