@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from test_rsu_app_support import free_port
+from test_rsu_app_support import free_port, run_pairwise
 
 ROOT = Path(__file__).resolve().parent.parent
 V2I = Path(sys.executable).with_name("v2i")
@@ -73,11 +73,11 @@ command = ["{{python}}", "-m", "av_app", "--config", "apps/av.toml", "--can-port
 @pytest.fixture(scope="module")
 def runs(study, tmp_path_factory):
     out = tmp_path_factory.mktemp("case-runs")
-    cases = {(cps, policy): run_case(study, "ima_case_study.toml" if cps else "ima_no_cps.toml", policy,
-                                     out / f"{'cps' if cps else 'no_cps'}-{policy}")
-             for cps in (True, False) for policy in ("fixed", "measured")}
-    cases["again"] = run_case(study, "ima_case_study.toml", "fixed", out / "cps-fixed-again")
-    return cases
+    jobs = {(cps, policy): ("ima_case_study.toml" if cps else "ima_no_cps.toml", policy,
+                            out / f"{'cps' if cps else 'no_cps'}-{policy}")
+            for cps in (True, False) for policy in ("fixed", "measured")}
+    jobs["again"] = ("ima_case_study.toml", "fixed", out / "cps-fixed-again")
+    return run_pairwise(lambda job: run_case(study, *job), jobs)
 
 
 @pytest.mark.parametrize("policy", ["fixed", "measured"])

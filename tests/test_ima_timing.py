@@ -26,7 +26,7 @@ from pathlib import Path
 import pytest
 
 from test_case_study import copy_study
-from test_rsu_app_support import free_port
+from test_rsu_app_support import free_port, run_pairwise
 
 V2I = Path(sys.executable).with_name("v2i")
 pytest.importorskip("zenoh")
@@ -103,10 +103,9 @@ def ev_behind(r: dict) -> bool:
 def runs(tmp_path_factory, fmu_dir):
     study = copy_study(tmp_path_factory.mktemp("ima-timing"))
     out = tmp_path_factory.mktemp("ima-timing-runs")
-    return {"late": run_timing(study, "late", out, 1.44, 10.0),
-            "early": run_timing(study, "early", out, -0.5, 9.0),
-            "very_late": run_timing(study, "very_late", out, 4.0, 12.0),
-            "no_ev": run_timing(study, "no_ev", out, 6.0, 8.0, parked=True)}
+    jobs = {"late": ("late", 1.44, 10.0), "early": ("early", -0.5, 9.0), "very_late": ("very_late", 4.0, 12.0),
+            "no_ev": ("no_ev", 6.0, 8.0, True)}
+    return run_pairwise(lambda job: run_timing(study, job[0], out, *job[1:]), jobs)
 
 
 def test_a_late_ev_the_cav_merges_ahead_instead_of_stopping_in_its_lane(runs):
