@@ -240,6 +240,8 @@ class AvCore:
         self.health.counts["commands"] += 1
         if accel < -0.5 and plan is not None and plan.decision in ("yield", "brake_hard", "stop_red"):
             self.health.mark("first_brake", t)
+        if plan is not None and plan.decision in ("go", "go_unsafe"):
+            self.health.mark("first_go", t)  # went on through a conflict zone instead of yielding
         records, waiting = [], []
         for p in self._pending:
             if p.fuse_t > t + 1e-12:

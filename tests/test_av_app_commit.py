@@ -116,7 +116,7 @@ def test_the_rsu_coverage_a_phantom_vehicle_would_need(distance, speed, safe):
     assert (plan.decision in ("cruise", "go")) is safe, (plan.decision, plan.choices, plan.conflicts)
 
 
-# -- past the last commit point with going on unsafe: the least conflict -------------------------------------------
+# -- past the last commit point with going on unsafe: a stop only clear of its way -------------------------------------------
 PAST = station_for(MAX) + 0.05  # braking at the limit no longer stops before the zone
 
 
@@ -125,22 +125,18 @@ def test_a_stop_that_leaves_the_objects_corridor_free_beats_an_unsafe_go():
     assert (ch.action, ch.why) == ("yield", "stop_clear_of_path")
 
 
-@pytest.mark.parametrize("gap, blocked, why", [
-    (-0.2, 0.3, "least_conflict_stop"),   # going on meets it; standing grazes a third of its way
-    (-0.2, 0.8, "committed_unsafe"),      # standing across most of its way: going on is no worse
-    (0.5, 0.3, "committed_unsafe"),       # going on is short of the merge gap but does not meet it
-])
-def test_standing_in_the_objects_way_is_chosen_only_when_it_blocks_less_than_going_on(gap, blocked, why):
+@pytest.mark.parametrize("gap, blocked", [(-0.2, 0.3), (-0.2, 0.8), (0.5, 0.05)])
+def test_a_stop_that_blocks_any_of_the_objects_way_is_not_taken(gap, blocked):
+    """Standing in its way, the object meets the ego at its full speed; going on, at the difference of their
+    speeds (the case study without the RSU: 16.7 m/s standing, 9.2 m/s going on)."""
     ch = commit_or_yield("ev", V0, PAST, ZONE, gap, blocked=blocked, **KW)
-    assert ch.why == why and ch.action == ("yield" if why.endswith("stop") else "go")
-    # a follower gap below 0 (it would close on the ego beyond the merge) is meeting it too
-    assert commit_or_yield("ev", V0, PAST, ZONE, 0.5, follow_gap=-0.1, blocked=0.3, **KW).why == "least_conflict_stop"
+    assert (ch.action, ch.why) == ("go", "committed_unsafe")
 
 
-def test_once_stopping_for_it_the_cav_stands_until_going_on_is_safe():
-    ch = commit_or_yield("ev", 0.0, ZONE + 1.5, ZONE, 0.3, blocked=0.9, stood=True, **KW)
-    assert (ch.action, ch.why) == ("yield", "least_conflict_stop")  # setting off toward its way blocks no less
-    assert commit_or_yield("ev", 0.0, ZONE + 1.5, ZONE, None, behind_gap=3.5, blocked=0.9, stood=True,
+def test_once_stopping_clear_of_it_the_cav_stands_until_going_on_is_safe():
+    ch = commit_or_yield("ev", 0.0, ZONE + 1.5, ZONE, 0.3, blocked=0.2, stood=True, **KW)
+    assert (ch.action, ch.why) == ("yield", "stop_clear_of_path")  # setting off toward its way never helps
+    assert commit_or_yield("ev", 0.0, ZONE + 1.5, ZONE, None, behind_gap=3.5, blocked=0.2, stood=True,
                            **KW).why == "clear_ahead"  # it has passed
 
 
