@@ -181,6 +181,19 @@ class PlannerSection:
                                       "within 45 degrees of it (map-based prediction)")
     motion: str = _f("ctrv", "object prediction: cv (constant velocity) or ctrv (constant turn rate)",
                      choices=("cv", "ctrv"))
+    merge_gap_s: float = _f(1.0, "going on through a conflict zone (instead of yielding) is safe when the object, "
+                                 "holding its speed, reaches every station the ego occupies through the zone and "
+                                 "the merge at least this long after the ego has left it, s", low=0.0)
+    merge_gap_m: float = _f(5.0, "... and at least this many metres behind it (at the object's speed), m", low=0.0)
+    merge_heading_deg: float = _f(15.0, "the merge into an object's lane ends where the ego's path heads within "
+                                        "this of the object's heading (plus one vehicle length); beyond, the object "
+                                        "follows the ego", positive=True, high=90.0)
+    escape_speed_max: float = _f(22.222, "ahead of a faster vehicle in its lane (after merging ahead of it, or "
+                                         "with one closing from behind) the ego speeds up to its speed, up to "
+                                         "this (80 km/h), m/s", positive=True)
+    escape_accel: float = _f(4.0, "... at this acceleration (also when going on through a conflict zone); the "
+                                  "case study's vehicle can do 11.5 m/s^2 below 4.8 m/s and is power-limited "
+                                  "above (fmus/vehicle: 6.8 m/s^2 at 8 m/s, 3.3 at 16.7), m/s^2", positive=True)
 
 
 @dataclass(frozen=True)

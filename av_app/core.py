@@ -240,6 +240,8 @@ class AvCore:
         self.health.counts["commands"] += 1
         if accel < -0.5 and plan is not None and plan.decision in ("yield", "brake_hard", "stop_red"):
             self.health.mark("first_brake", t)
+        if plan is not None and plan.decision in ("go", "go_unsafe"):
+            self.health.mark("first_go", t)  # went on through a conflict zone instead of yielding
         records, waiting = [], []
         for p in self._pending:
             if p.fuse_t > t + 1e-12:
@@ -265,6 +267,10 @@ class AvCore:
                        lateral=r(p.lateral), target=r(p.target_speed))
             out["conflicts"] = [[c.object_id, None if c.ttc is None else r(c.ttc), None if c.pet is None else r(c.pet),
                                  None if c.station_in is None else r(c.station_in)] for c in p.conflicts]
+            if p.choices:  # commit or yield, per conflicting object: [id, action, why, stop decel, go gap, zone]
+                out["choices"] = [[ch.object_id, ch.action, ch.why,
+                                   None if not math.isfinite(ch.need_decel) else r(ch.need_decel),
+                                   None if ch.go_gap is None else r(ch.go_gap), r(ch.zone_in)] for ch in p.choices]
         if self.signals.last:
             out["signal"] = dict(self.signals.last)
         objs = [o for o in self.last_objects if not o.static]

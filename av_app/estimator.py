@@ -28,7 +28,7 @@ import numpy as np
 
 from av_app.config import PlannerSection, VehicleSection
 from av_app.fusion import FusedObject
-from av_app.geometry import overlap_boxes, to_frame, wrap
+from av_app.geometry import corners, overlap_boxes, to_frame, wrap
 from av_app.route import PathSamples
 
 
@@ -133,6 +133,23 @@ class CollisionEstimator:
                 b[si] = np.inf  # a standing object stays beyond the horizon
         return Occupancy(o, a, b)
 
+    def blocked(self, o: FusedObject, pose: tuple[float, float, float], lane_shift: float = 0.0) -> float:
+        """The fraction (0..1) of the object's corridor width that the ego, standing at rear-axle `pose`,
+        would block: the corridor is the band the object sweeps ahead of its rear along its heading, its
+        width wide (plus the margin on each side), its centre line `lane_shift` m to the object's left (the
+        lane's centre where the map knows it: a lidar box's centre is biased toward the sensor). 0: the
+        object passes the standing ego without touching it; 1: the ego stands across its whole way."""
+        v, m = self.vehicle, self.cfg.margin_m / 2
+        off = v.length / 2 - v.rear_overhang
+        box = corners(pose[0] + off * math.cos(pose[2]), pose[1] + off * math.sin(pose[2]), pose[2], v.length,
+                      v.width)
+        u, lat = to_frame(box[:, 0], box[:, 1], (o.x, o.y, o.yaw))
+        if float(np.max(u)) < -o.length / 2:
+            return 0.0  # wholly behind the object
+        half = o.width / 2 + m
+        lo, hi = lane_shift - half, lane_shift + half
+        return max(0.0, min(float(np.max(lat)), hi) - max(float(np.min(lat)), lo)) / (2 * half)
+
     # -- measures --------------------------------------------------------------------------------------
     @staticmethod
     def assess(occ: Occupancy, tau_ego: np.ndarray, path: PathSamples) -> Conflict:
@@ -156,3 +173,43 @@ class CollisionEstimator:
         gap = np.where(hi < a, a - hi, np.where(lo > b, lo - b, -(end - start)))
         return Conflict(o.id, o.emergency, ttc, float(gap.min()), float(path.s[has][0]), float(occ.a[has].min()),
                         float(occ.b[has].max()))
+
+    @staticmethod
+    def go_gap(occ: Occupancy, tau_ego: np.ndarray, path: PathSamples, merge_heading: float,
+               merge_length: float) -> "GoGaps":
+        """The smallest time gaps between the ego's passage (on timing tau_ego) and the object's: over the
+        stations of the conflict zone and of the merge into the object's lane (up to `merge_length` past the
+        first station, from the zone on, where the path heads within `merge_heading` rad of the object),
+        split by who passes first; and over the stations beyond (the object follows the ego in its lane, or
+        the ego follows it). None where no such station is occupied (or the ego does not get there)."""
+        o = occ.object
+        has = np.isfinite(occ.a)
+        mid = (tau_ego[1:] + tau_ego[:-1]) / 2
+        lo = np.concatenate([tau_ego[:1], mid])
+        hi = np.concatenate([mid, tau_ego[-1:]])
+        has &= np.isfinite(lo)
+        if not has.any():
+            return GoGaps(None, None, None, False)
+        first = int(np.flatnonzero(has)[0])
+        aligned = np.abs(wrap(path.yaw - o.yaw)) <= merge_heading
+        aligned[:first] = False
+        through = has.copy()
+        if aligned.any():
+            through &= path.s <= path.s[int(np.flatnonzero(aligned)[0])] + merge_length
+        start, end = np.maximum(lo, occ.a), np.minimum(hi, occ.b)
+        with np.errstate(invalid="ignore"):
+            gap = np.where(hi < occ.a, occ.a - hi, np.where(lo > occ.b, lo - occ.b, -(end - start)))
+            behind = lo > occ.b  # the object has left the station before the ego gets there
+        after = has & ~through
+        pick = lambda m: float(gap[m].min()) if m.any() else None  # noqa: E731
+        return GoGaps(pick(through & ~behind), pick(through & behind), pick(after), bool((after & ~behind).any()))
+
+
+@dataclass(frozen=True)
+class GoGaps:
+    """What going on would leave (CollisionEstimator.go_gap), s."""
+
+    ahead: float | None  # through the zone and the merge, where the ego passes first (negative: together)
+    behind: float | None  # ... where the object passes first and the ego follows it
+    follow: float | None  # beyond the merge, in the object's lane
+    leads: bool  # beyond the merge the ego is ahead of the object (which follows it)

@@ -54,6 +54,24 @@ class LaneMap:
             return math.pi / 2 if x > 0 else -math.pi / 2
         return None
 
+    def centre_shift(self, obj) -> float:
+        """How far (m, to the object's left) the centre line of the lane it drives in is from its centre:
+        the lane of the road it is on that goes its way (in the junction box too, where its heading says
+        which road it follows); 0 off the roads or when its heading follows neither road."""
+        edge = self.road_width / 2 + self.tolerance
+        quarter = self.road_width / 4
+        for d in (0.0, math.pi, math.pi / 2, -math.pi / 2):
+            if abs(float(wrap(obj.yaw - d))) > self.max_deviation:
+                continue
+            if d in (0.0, math.pi) and abs(obj.y) <= edge and abs(obj.x) <= self.arm_length:
+                cx, cy = obj.x, (-quarter if d == 0.0 else quarter)  # eastbound south of the centre line
+            elif d not in (0.0, math.pi) and abs(obj.x) <= edge and abs(obj.y) <= self.arm_length:
+                cx, cy = (quarter if d > 0 else -quarter), obj.y  # northbound east of it
+            else:
+                continue
+            return -(cx - obj.x) * math.sin(obj.yaw) + (cy - obj.y) * math.cos(obj.yaw)
+        return 0.0
+
     def snap(self, obj):
         """The object with its heading along its lane (speed kept), or unchanged."""
         if obj.static or obj.speed < 1.0:

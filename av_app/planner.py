@@ -18,6 +18,23 @@ vehicle resumes as soon as going on would clear the zone with the margin; a
 yield is held until the margin is exceeded by `hysteresis_s`, so a decision
 does not flicker. Objects following the ego in its lane are not yielded to.
 
+Commit or yield (issue 38): yielding is only a plan while the vehicle can
+still stop *before* the conflict zone (the first ego station the object's
+predicted footprint occupies), at `decel_stop` or as hard as that needs up
+to the vehicle's `max_decel`: the last station from which it can is the
+zone's commit point. `commit_or_yield` decides per conflicting object:
+a comfortable yield (at most `decel_comfort`) when going on would leave less
+than the PET margin; otherwise going on (a profile that accelerates at
+`planner.escape_accel` within the route's limits) when the object, holding its speed,
+reaches every station of the zone and of the merge into its lane at least
+`merge_gap_s` (and `merge_gap_m`) after the ego has left it; otherwise a
+hard yield when stopping before the zone is still possible; and past the
+commit point with going on unsafe too, going on anyway: standing inside the
+zone is the worst of the choices (the plan log says "go_unsafe"). A vehicle
+never stops with its footprint in a lane a reported vehicle is about to
+reach, and a vehicle it has merged ahead of is a follower, not a reason to
+brake.
+
 The longitudinal command tracks the profile (its slope ahead, a proportional
 term on the speed error, the road load fed forward); pure pursuit steers.
 """
@@ -31,11 +48,15 @@ import numpy as np
 from av_app.config import AvConfig
 from av_app.estimator import CollisionEstimator, Conflict
 from av_app.fusion import FusedObject
+from av_app.geometry import to_frame
 from av_app.lanes import LaneMap
 from av_app.route import PathSamples, Route, pure_pursuit
 
 HYSTERESIS_S = 0.5
-PREVIEW_S = 0.5  # the longitudinal controller follows the profile's slope over this much time ahead
+GO_HYSTERESIS_S = 0.3  # s of gap a decision to go may lose before it is reconsidered
+PREVIEW_S = 0.5
+STOP_SLACK_M = 0.2
+ESCAPE_HOLD = 1.0  # m/s: ahead of a follower, the ego keeps its speed up to this much above the follower's  # past a stop point, the vehicle must still stand this far before the zone  # the longitudinal controller follows the profile's slope over this much time ahead
 
 
 @dataclass(frozen=True)
@@ -43,6 +64,76 @@ class Stop:
     s: float  # station (rear axle) where the vehicle must stand
     reason: str  # yield | red | route_end
     cause: str = ""  # object id / signal group
+    past: float | None = None  # how far past the point the vehicle may still come to rest (None: the stop margin)
+
+
+@dataclass(frozen=True)
+class Choice:
+    """What to do about one conflicting object (see commit_or_yield)."""
+
+    object_id: str
+    action: str  # yield | go | go_unsafe
+    need_decel: float  # the deceleration that stops before the zone (inf: it no longer can)
+    go_gap: float | None  # the smallest time gap through the zone and the merge if the ego goes on (None: none)
+    zone_in: float  # the zone's first ego station
+    why: str  # comfortable_yield | clear_ahead | merge_ahead | hard_yield | committed_unsafe
+
+
+def stop_decel(v0: float, s0: float, zone_in: float, stop_margin: float, grown: float = 0.0) -> float:
+    """The deceleration that stops the ego (at v0, station s0) `stop_margin` before a zone that starts at
+    zone_in, or within that margin once it is past the stop point (the controller stops there exactly);
+    0 standing outside the zone (up to `grown` past its entry: the entry is where the footprints grown by
+    the safety margins touch, so a standing vehicle that far in is still clear of the lane); inf when it
+    can no longer stop outside the zone."""
+    if v0 <= 0.05 and s0 < zone_in + grown:
+        return 0.0
+    room = zone_in - stop_margin - s0
+    if room <= 0.05:
+        room = zone_in - s0 - STOP_SLACK_M  # past the stop point: what is left of the margin
+        if room <= 0.05:
+            return math.inf
+    return v0 * v0 / (2 * room)
+
+
+def commit_or_yield(object_id: str, v0: float, s0: float, zone_in: float, go_gap: float | None, *,
+                    pet_margin: float, merge_gap: float, stop_margin: float, decel_comfort: float,
+                    max_decel: float, going: bool = False, follow_gap: float | None = None,
+                    follow_need: float = 0.0, behind_gap: float | None = None, grown: float = 0.0,
+                    blocked: float | None = None, stood: bool = False) -> Choice:
+    """Yield (stop before the zone) or go on (clear it), for one object whose PET on the free profile is short.
+
+    In this order: a yield the vehicle can make comfortably is taken unless going on clears the object by
+    the full PET margin anyway (or it has already decided to go and going on is still safe); then going on
+    where it is safe (gap >= merge_gap through the zone and the merge, and the object, not braking, stays
+    `follow_need` s behind the ego speeding up ahead of it: follow_gap); then a yield as hard as the vehicle can brake, while stopping before
+    the zone is possible at all. Past that commit point, with going on unsafe too: a stop where braking at the
+    vehicle's limit leaves the ego, if it leaves the object's corridor free (`blocked`, the fraction of its
+    corridor the standing ego would block, is 0); otherwise going on, because an object that meets a
+    standing ego meets it at its full speed, one that meets it going on at the difference of their speeds
+    (measured: the case study without the RSU, standing 16.7 m/s, going on 9.2 m/s).
+    """
+    need = stop_decel(v0, s0, zone_in, stop_margin, grown)
+    slack = GO_HYSTERESIS_S if going else 0.0  # a decision to go is not undone by a gap a plan's noise shorter
+    follows = follow_gap is None or follow_gap >= follow_need - slack
+    # behind an object that has passed (behind_gap) merge_gap makes going on safe, but only the PET margin
+    # makes it clear: following an ev into its lane 1 s behind it left the case study's PET at -0.05 s
+    safe_go = (go_gap is None or go_gap >= merge_gap - slack) and follows and (
+        behind_gap is None or behind_gap >= merge_gap - slack)
+    clear = (go_gap is None or go_gap >= pet_margin) and follows and (behind_gap is None or behind_gap >= pet_margin)
+    go_gap = go_gap if go_gap is not None else behind_gap  # what the plan log shows
+    if need <= decel_comfort and not clear and not (going and safe_go):
+        return Choice(object_id, "yield", need, go_gap, zone_in, "comfortable_yield")
+    if clear:
+        return Choice(object_id, "go", need, go_gap, zone_in, "clear_ahead")
+    if safe_go:
+        return Choice(object_id, "go", need, go_gap, zone_in, "merge_ahead")
+    if need <= max_decel:
+        return Choice(object_id, "yield", need, go_gap, zone_in, "hard_yield")
+    # past the last commit point with going on unsafe: a stop that leaves the object's way free (and, once
+    # stopping for it, standing until going on is safe: setting off toward its way while it passes never helps)
+    if blocked is not None and (blocked <= 0.0 or stood):
+        return Choice(object_id, "yield", need, go_gap, zone_in, "stop_clear_of_path")
+    return Choice(object_id, "go", need, go_gap, zone_in, "committed_unsafe")
 
 
 @dataclass
@@ -50,22 +141,29 @@ class Plan:
     t: float
     accel: float
     steer: float
-    decision: str  # cruise | yield | stop_red | brake_hard | hold | route_end
+    decision: str  # cruise | yield | stop_red | brake_hard | hold | route_end | go | go_unsafe | escape
     cause: str  # the object (or signal group) behind the decision
     target_speed: float
     s: float  # ego station on the route
     lateral: float  # ego offset left of the route, m
     conflicts: list[Conflict] = field(default_factory=list)
     stops: list[Stop] = field(default_factory=list)
+    choices: list[Choice] = field(default_factory=list)
 
 
-def profile(path: PathSamples, v0: float, cfg: AvConfig, stops: list[Stop]) -> np.ndarray:
-    """Planned speed at each station of `path` (starting at the ego's station)."""
+def profile(path: PathSamples, v0: float, cfg: AvConfig, stops: list[Stop], accel: float | None = None,
+            cruise: float | None = None) -> np.ndarray:
+    """Planned speed at each station of `path` (starting at the ego's station); speeding up at `accel`
+    (default: control.accel_comfort) to `cruise` (default: route.cruise_speed)."""
     ctl, veh, route = cfg.control, cfg.vehicle, cfg.route
     s = path.s
     with np.errstate(divide="ignore"):
         v_curve = np.sqrt(route.lateral_accel_max / np.maximum(np.abs(path.kappa), 1e-9))
-    lim = np.minimum(route.cruise_speed, v_curve)
+    lim = np.minimum(route.cruise_speed if cruise is None else cruise, v_curve)
+    # above a speed limit (a cruise speed just lowered: no follower to speed away from any more) the ego
+    # slows at decel_comfort, not at once: an over-speed is not a hazard, a brake in front of a follower is
+    over = v0 * v0 - 2 * ctl.decel_comfort * (s - s[0])
+    lim = np.sqrt(np.maximum(lim * lim, over))
     v2 = _backward(lim * lim, s, ctl.decel_curve)
     for stop in stops:
         dist = stop.s - s[0]
@@ -74,7 +172,7 @@ def profile(path: PathSamples, v0: float, cfg: AvConfig, stops: list[Stop]) -> n
         v2 = np.minimum(v2, np.where(s >= stop.s, 0.0, 2 * decel * np.maximum(stop.s - s, 0.0)))
     # forward pass from the current speed: v_i^2 <= v_k^2 + 2 a (s_i - s_k) for every k <= i
     v2[0] = min(v0 * v0, v2[0])
-    a2 = 2 * ctl.accel_comfort
+    a2 = 2 * (ctl.accel_comfort if accel is None else accel)
     return np.sqrt(np.minimum.accumulate(v2 - a2 * s) + a2 * s)
 
 
@@ -102,6 +200,9 @@ class Planner:
         self.estimator = CollisionEstimator(cfg.planner, cfg.vehicle)
         self.s: float | None = None  # last station (hint for projection)
         self.yielding: set[str] = set()
+        self.zones: dict[str, float] = {}  # object id -> its conflict zone's first station, while in conflict
+        self.going: set[str] = set()  # objects the ego has decided to go on ahead of (or clear the zone before)
+        self.stands: dict[str, float] = {}  # object id -> where the ego stops short of its way (least conflict)
         self.path_length = max(30.0, cfg.route.cruise_speed * cfg.planner.horizon_s * 1.5 + 10.0)
 
     def plan(self, t: float, pose: tuple[float, float, float], v: float, objects: list[FusedObject],
@@ -117,28 +218,94 @@ class Planner:
             base_stops.append(Stop(end, "route_end"))
         free = profile(path, v0, cfg, base_stops)
         tau_free = timing(path, free)
+        pl = cfg.planner
+        escape: list[float] = []  # the speeds of faster vehicles closing from behind in the ego's lane
+        tau_go = None  # the ego's timing if it goes on (computed for the first conflict that needs it)
         ego = self.estimator.ego_boxes(path)
-        conflicts, stops = [], list(base_stops)
-        yielding = set()
+        conflicts, stops, choices = [], list(base_stops), []
+        yielding, going, go_speed, zones, stands = set(), set(), {}, {}, {}
         for o in objects:
             if self.lanes is not None:
                 o = self.lanes.snap(o)
             if self.estimator.follower(o, pose):
+                behind = -float(to_frame(o.x, o.y, pose)[0])
+                if not o.static and o.speed > v0 - ESCAPE_HOLD and behind < o.speed * pl.horizon_s:
+                    escape.append(o.speed)  # as fast as the ego (or faster), within the horizon behind it
                 continue
             occ = self.estimator.occupancy(o, ego)
             if not occ.any:
                 continue
             c = self.estimator.assess(occ, tau_free, path)
             conflicts.append(c)
-            margin = cfg.planner.pet_margin_emergency_s if o.emergency else cfg.planner.pet_margin_s
+            margin = pl.pet_margin_emergency_s if o.emergency else pl.pet_margin_s
             if o.id in self.yielding:
                 margin += HYSTERESIS_S
-            if c.pet is not None and c.pet < margin and c.station_in is not None:
-                stops.append(Stop(c.station_in - cfg.planner.stop_margin_m, "yield", o.id))
+            if c.pet is None or c.pet >= margin or c.station_in is None:
+                if o.id in self.going and c.pet is not None:
+                    going.add(o.id)  # keep the decision while the object still crosses the path
+                continue
+            # going on: at escape_accel to the route's speeds through the zone, and once merged ahead of a
+            # faster object in its lane, on to its speed (up to escape_speed_max)
+            if tau_go is None:
+                tau_go = timing(path, profile(path, v0, cfg, base_stops, accel=pl.escape_accel))
+            cruise = max(cfg.route.cruise_speed, min(o.speed, pl.escape_speed_max))
+            # the zone's entry as first seen while in conflict: a footprint grown by margins flickers by a
+            # station step from plan to plan, and a vehicle standing at its stop point would find the zone
+            # moved under its nose (and take itself for committed), or brake hard for a stop point moved back
+            # by half a metre; so the first entry seen is kept
+            # for good; it moves nearer only while the ego can still stop comfortably before the new entry
+            # (the stop margin and the grown footprints absorb a station step of jitter), never further away
+            zone_in = self.zones.get(o.id, c.station_in)
+            room = c.station_in - pl.stop_margin_m - s0  # to the new stop point, its margin kept whole
+            if c.station_in < zone_in and room > 0.5 and v0 * v0 / (2 * room) <= cfg.control.decel_comfort:
+                zone_in = c.station_in
+            zones[o.id] = zone_in
+            merge = math.radians(pl.merge_heading_deg)
+            gaps = self.estimator.go_gap(occ, tau_go, path, merge, cfg.vehicle.length)
+            follow, leads = gaps.follow, gaps.leads
+            if leads and cruise > cfg.route.cruise_speed:  # merged ahead of a faster object: speed up
+                tau_esc = timing(path, profile(path, v0, cfg, base_stops, accel=pl.escape_accel, cruise=cruise))
+                follow = self.estimator.go_gap(occ, tau_esc, path, merge, cfg.vehicle.length).follow
+            need_gap = max(pl.merge_gap_s, pl.merge_gap_m / max(o.speed, 1.0))
+            ch = commit_or_yield(o.id, v0, s0, zone_in, gaps.ahead, pet_margin=margin, merge_gap=need_gap,
+                                 stop_margin=pl.stop_margin_m, decel_comfort=cfg.control.decel_comfort,
+                                 max_decel=cfg.vehicle.max_decel, going=o.id in self.going, follow_gap=follow,
+                                 follow_need=pl.merge_gap_m / max(o.speed, 1.0), behind_gap=gaps.behind,
+                                 grown=2 * pl.margin_m)
+            if ch.why == "committed_unsafe":
+                # where braking at the limit leaves it (a tenth of a second to react, the controller's slack);
+                # once chosen the point is kept (recomputed each plan it would creep on by that slack)
+                s_stand = self.stands.get(o.id, s0 + v0 * v0 / (2 * cfg.vehicle.max_decel) + v0 * pl.dt_s
+                                          + STOP_SLACK_M)
+                stand = self.route.at(np.array([s_stand]))
+                shift = self.lanes.centre_shift(o) if self.lanes is not None else 0.0
+                blocked = self.estimator.blocked(o, (float(stand[0][0]), float(stand[1][0]), float(stand[2][0])),
+                                                 shift)
+                ch = commit_or_yield(o.id, v0, s0, zone_in, gaps.ahead, pet_margin=margin, merge_gap=need_gap,
+                                     stop_margin=pl.stop_margin_m, decel_comfort=cfg.control.decel_comfort,
+                                     max_decel=cfg.vehicle.max_decel, going=o.id in self.going,
+                                     follow_gap=follow, follow_need=pl.merge_gap_m / max(o.speed, 1.0),
+                                     behind_gap=gaps.behind, grown=2 * pl.margin_m, blocked=blocked,
+                                     stood=o.id in self.stands)
+            go_speed[o.id] = cruise if leads else cfg.route.cruise_speed
+            choices.append(ch)
+            if ch.why == "stop_clear_of_path":
+                stops.append(Stop(s_stand, "yield", o.id, past=STOP_SLACK_M))  # no margin beyond: the object's way
+                stands[o.id] = s_stand
                 yielding.add(o.id)
-        self.yielding = yielding
-        v_plan = profile(path, v0, cfg, stops)
-        accel, target = self._longitudinal(path, v_plan, v0, [st for st in stops if st.s < s0 + self.path_length])
+            elif ch.action == "yield":
+                stops.append(Stop(zone_in - pl.stop_margin_m, "yield", o.id))
+                yielding.add(o.id)
+            else:
+                going.add(o.id)
+        self.yielding, self.going, self.zones, self.stands = yielding, going, zones, stands
+        go = bool(going) and not yielding
+        fast = [go_speed.get(k, cfg.route.cruise_speed) for k in going] if go else []
+        fast += [min(v, pl.escape_speed_max) for v in escape]
+        v_plan = profile(path, v0, cfg, stops, accel=pl.escape_accel if go or escape else None,
+                         cruise=max([cfg.route.cruise_speed, *fast]))
+        accel, target = self._longitudinal(path, v_plan, v0, [st for st in stops if st.s < s0 + self.path_length],
+                                           pl.escape_accel if go or escape else cfg.vehicle.max_accel)
         steer, _ = pure_pursuit(self.route, pose, v0, s0, cfg.vehicle.wheelbase, cfg.control.lookahead_min_m,
                                 cfg.control.lookahead_time_s, cfg.vehicle.max_steer)
         decision, cause = "cruise", ""
@@ -149,13 +316,21 @@ class Planner:
             cause = first.cause
             if accel < -cfg.control.decel_comfort and decision != "route_end":
                 decision = "brake_hard"  # harder than comfortable: it had to
+        elif go:
+            unsafe = [ch for ch in choices if ch.why == "committed_unsafe"]
+            decision = "go_unsafe" if unsafe else "go"
+            cause = (unsafe or [ch for ch in choices if ch.action == "go"] or [None])[0]
+            cause = cause.object_id if cause is not None else sorted(going)[0]
+        elif escape:
+            decision = "escape"  # a faster vehicle closes from behind: speed up ahead of it, never brake
         if v0 < 0.3 and target < 0.3:
             accel = -cfg.control.hold_decel  # standing: hold the brake
             if decision == "cruise":
                 decision = "hold"
-        return Plan(t, accel, steer, decision, cause, target, s0, lateral, conflicts, stops)
+        return Plan(t, accel, steer, decision, cause, target, s0, lateral, conflicts, stops, choices)
 
-    def _longitudinal(self, path: PathSamples, v_plan: np.ndarray, v0: float, stops: list[Stop]) -> tuple[float, float]:
+    def _longitudinal(self, path: PathSamples, v_plan: np.ndarray, v0: float, stops: list[Stop],
+                      a_max: float) -> tuple[float, float]:
         """Acceleration that follows the profile to its next station, brakes exactly for the nearest stop
         (the station grid does not hold the stop point), corrects a speed above the profile, and feeds the
         road load forward."""
@@ -171,8 +346,9 @@ class Planner:
             if d > 0.05 and v0 * v0 / (2 * d) >= cfg.control.decel_stop - 1e-9:
                 a = min(a, -v0 * v0 / (2 * d))  # on (or past) the stop profile: exactly what stopping needs
             elif d <= 0.05 and v0 > 0.0:  # at or past the stop point: stop within the margin left
-                a = min(a, -v0 * v0 / (2 * max(d + margin, 0.1)))
+                beyond = margin - STOP_SLACK_M if st.past is None else st.past
+                a = min(a, -v0 * v0 / (2 * max(d + beyond, 0.1)))
         a += cfg.control.speed_kp * min(v_plan[0] - v0, 0.0)  # only brakes: the profile starts at v0 otherwise
         road = cfg.vehicle.road_load_c0 + cfg.vehicle.road_load_c2 * v0 * v0 if v0 > 0.05 else 0.0
-        accel = min(max(a + road, -cfg.vehicle.max_decel), cfg.vehicle.max_accel)
+        accel = min(max(a + road, -cfg.vehicle.max_decel), a_max)
         return float(accel), float(v_plan[k])

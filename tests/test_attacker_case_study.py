@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 
 from test_case_study import run_case
+from test_rsu_app_support import run_pairwise
 
 ROOT = Path(__file__).resolve().parent.parent
 pytest.importorskip("zenoh")
@@ -39,8 +40,9 @@ def runs(tmp_path_factory, fmu_dir):
     for name in ("rsu.toml", "av.toml", "attacker.toml"):
         shutil.copy(ROOT / "scenarios" / "apps" / name, study / "apps" / name)
     out = tmp_path_factory.mktemp("attack-runs")
-    return {"plain": run_case(study, "ima_case_study.toml", "fixed", out / "plain"),
-            "attack": run_case(study, "ima_attack.toml", "fixed", out / "attack")}
+    jobs = {"plain": ("ima_case_study.toml", "fixed", out / "plain"),
+            "attack": ("ima_attack.toml", "fixed", out / "attack")}
+    return run_pairwise(lambda job: run_case(study, *job), jobs)
 
 
 def last_json(path: Path) -> dict:

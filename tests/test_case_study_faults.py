@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from test_case_study import copy_study
-from test_rsu_app_support import free_port
+from test_rsu_app_support import free_port, run_pairwise
 
 ROOT = Path(__file__).resolve().parent.parent
 V2I = Path(sys.executable).with_name("v2i")
@@ -55,8 +55,23 @@ args = ["--can-port", "{can}"]
             "scenario_events": [e for e in events if e.get("event") == "scenario_event"]}
 
 
-def test_the_rsu_app_killed_before_the_conflict_is_reported_and_the_run_goes_on(study):
-    r = run(study, "ima_rsu_crash.toml", "rsu-crash")
+AV_KILLED = """
+[[events]]
+at = 3.0
+action = "kill"
+participant = "cav"
+"""
+
+
+@pytest.fixture(scope="module")
+def runs(study):
+    jobs = {"rsu": ("ima_rsu_crash.toml", "rsu-crash"),
+            "av": ("ima_case_study.toml", "av-crash", AV_KILLED, "required = false")}
+    return run_pairwise(lambda job: run(study, *job), jobs)
+
+
+def test_the_rsu_app_killed_before_the_conflict_is_reported_and_the_run_goes_on(runs):
+    r = runs["rsu"]
     (kill,) = r["scenario_events"]
     assert kill["action"] == "kill" and kill["participant"] == "rsu" and kill["t"] == pytest.approx(4.2)
     part = r["meta"]["participants"]
@@ -70,13 +85,8 @@ def test_the_rsu_app_killed_before_the_conflict_is_reported_and_the_run_goes_on(
     assert "collision: false" in r["stdout"]
 
 
-def test_the_av_app_killed_the_gateway_brakes_and_records_it(study):
-    r = run(study, "ima_case_study.toml", "av-crash", cav="required = false", extra="""
-[[events]]
-at = 3.0
-action = "kill"
-participant = "cav"
-""")
+def test_the_av_app_killed_the_gateway_brakes_and_records_it(runs):
+    r = runs["av"]
     assert r["meta"]["status"] == "completed"
     assert r["meta"]["participants"]["members"]["cav"]["process"]["returncode"] == -9
     can_events = [json.loads(x) for x in (r["dir"] / "can-events.jsonl").read_text().splitlines()]

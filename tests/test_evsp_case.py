@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from test_rsu_app_support import free_port
+from test_rsu_app_support import free_port, run_pairwise
 
 ROOT = Path(__file__).resolve().parent.parent
 V2I = Path(sys.executable).with_name("v2i")
@@ -59,9 +59,9 @@ listen = ["tcp/127.0.0.1:{free_port()}"]
 @pytest.fixture(scope="module")
 def runs(study, tmp_path_factory):
     out = tmp_path_factory.mktemp("evsp-runs")
-    return {"evsp": run(study, "evsp.toml", out / "evsp"),
-            "none": run(study, "evsp_no_preemption.toml", out / "none"),
-            "1200": run(study, "evsp.toml", out / "evsp-1200", baud=1200)}
+    jobs = {"evsp": ("evsp.toml", out / "evsp"), "none": ("evsp_no_preemption.toml", out / "none"),
+            "1200": ("evsp.toml", out / "evsp-1200", 1200)}
+    return run_pairwise(lambda job: run(study, *job), jobs)
 
 
 def test_the_ev_gets_its_green_before_it_reaches_the_stop_line(runs):
