@@ -29,8 +29,10 @@ than the PET margin; otherwise going on (a profile that accelerates at
 reaches every station of the zone and of the merge into its lane at least
 `merge_gap_s` (and `merge_gap_m`) after the ego has left it; otherwise a
 hard yield when stopping before the zone is still possible; and past the
-commit point with going on unsafe too, going on anyway: standing inside the
-zone is the worst of the choices (the plan log says "go_unsafe"). A vehicle
+commit point with going on unsafe too, a stop only where braking at the limit
+leaves the ego clear of the object's corridor ("stop_clear_of_path"), else
+going on anyway: an object meets a standing ego at its full speed (the plan
+log says "go_unsafe"). A vehicle
 never stops with its footprint in a lane a reported vehicle is about to
 reach, and a vehicle it has merged ahead of is a follower, not a reason to
 brake.
@@ -56,7 +58,7 @@ HYSTERESIS_S = 0.5
 GO_HYSTERESIS_S = 0.3  # s of gap a decision to go may lose before it is reconsidered
 PREVIEW_S = 0.5
 STOP_SLACK_M = 0.2
-ESCAPE_HOLD = 1.0  # m/s: ahead of a follower, the ego keeps its speed up to this much above the follower's  # past a stop point, the vehicle must still stand this far before the zone  # the longitudinal controller follows the profile's slope over this much time ahead
+ESCAPE_HOLD = 1.0  # m/s: ahead of a follower, the ego keeps its speed up to this much above the follower's
 
 
 @dataclass(frozen=True)
@@ -202,7 +204,7 @@ class Planner:
         self.yielding: set[str] = set()
         self.zones: dict[str, float] = {}  # object id -> its conflict zone's first station, while in conflict
         self.going: set[str] = set()  # objects the ego has decided to go on ahead of (or clear the zone before)
-        self.stands: dict[str, float] = {}  # object id -> where the ego stops short of its way (least conflict)
+        self.stands: dict[str, float] = {}  # object id -> where the ego stops clear of its way
         self.path_length = max(30.0, cfg.route.cruise_speed * cfg.planner.horizon_s * 1.5 + 10.0)
 
     def plan(self, t: float, pose: tuple[float, float, float], v: float, objects: list[FusedObject],
