@@ -5,8 +5,14 @@ In realtime every stamp of the latency chain is on the run clock (the master's p
 follows the pacer's schedule): the apps stamp their work on it, and the master stamps what it hands them (camera
 frames, air arrivals, applied commands) on it too. So every stage is non-negative and every camera-based record
 the AV app turned into a command has an end-to-end figure, even though this shared 2-core machine cannot render
-the 640x480 camera at real time (about 160 ms per frame on pybullet's CPU renderer): the test runs at RTF 0.3
+the 640x480 camera at real time (about 160 ms per frame on pybullet's CPU renderer): the test runs at RTF 0.2
 and checks that the run says so loudly whenever it missed deadlines. Needs root and `ip netns` (skips otherwise).
+
+RTF 0.2, not 0.3: measured on this machine alone at 0.3, the loop fell behind by seconds (lag p99 5.2 s, achieved
+RTF 0.25), the box's first warning reached the AV app's planner only after the conflict, and whether the cav
+met the ev depended on when its lidar saw it (the old planner happened to arrive after the ev; the commit-or-
+yield one collided at 8.16 s); 16-20 camera-based records made it through. At 0.2: lag p99 0.41 s, the warning
+at 3.86 s, the cav yields on it (min gap 2.08 m), 153 records, E2E p50 142 ms.
 """
 from __future__ import annotations
 
@@ -26,7 +32,7 @@ from test_hil_netns import MASTER_IP, netns_pair  # noqa: F401  (the two-namespa
 from test_rsu_app_support import free_port, make_pki
 
 ROOT = Path(__file__).resolve().parent.parent
-RTF = 0.3
+RTF = 0.2
 PREFIX = f"test/rt-box-{uuid.uuid4().hex[:8]}"
 pytest.importorskip("zenoh")
 pytest.importorskip("pybullet")
