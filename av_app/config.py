@@ -71,6 +71,8 @@ class ObuSection:
     default_length: float = _f(4.5, "object length when a BSM says 'unavailable', m", positive=True)
     default_width: float = _f(1.8, "object width when a BSM says 'unavailable', m", positive=True)
     position_sigma: float = _f(1.0, "position std of a BSM without accuracy, m (fusion weight)", positive=True)
+    sdsm_psids: list = _f([0x90], "PSIDs an SDSM may be signed under (deployments differ: 0x90, or its "
+                                   "1609.12 p-encoded form written 0x8010)")
     self_gate_m: float = _f(2.5, "an RSU's surrogate BSM whose centre is within this distance of the ego's own "
                                  "centre describes the ego itself (any speed and heading: the footprints would "
                                  "overlap), not an obstacle; a vehicle's own BSM (PSID 0x20) also needs the ego's "
@@ -335,6 +337,9 @@ def _semantic(cfg: AvConfig, problems: list[str]) -> None:
         for i, (a, b) in enumerate(zip(wps, wps[1:])):
             if math.dist(a, b) < 1e-6:
                 problems.append(f"route.waypoints: points {i} and {i + 1} coincide ({a})")
+    psids = cfg.obu.sdsm_psids
+    if not psids or not all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 0xFFFFFFFF for v in psids):
+        problems.append(f"obu.sdsm_psids: expected a list of PSIDs (integers 0..0xFFFFFFFF), got {psids!r}")
     if cfg.vehicle.rear_overhang >= cfg.vehicle.length:
         problems.append(f"vehicle.rear_overhang: {cfg.vehicle.rear_overhang} must be shorter than vehicle.length "
                         f"{cfg.vehicle.length}")

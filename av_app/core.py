@@ -121,15 +121,16 @@ class AvCore:
         t_decode = self.clock.charge("decode", t_verify, acc.wall_s["decode"])
         # fuse: the object joins the list the planner fuses from (association itself runs at plan time)
         w0 = time.perf_counter()
-        entry = [math.inf, acc.object]
-        if acc.object is not None:
-            self._v2x.setdefault(acc.object.id, []).append(entry)
+        carried = [acc.object] if acc.object is not None else acc.objects  # a BSM's one, an SDSM's all
+        entries = [[math.inf, obj] for obj in carried]
+        for entry in entries:
+            self._v2x.setdefault(entry[1].id, []).append(entry)
         wall_fuse = time.perf_counter() - w0
         t_fuse = self.clock.charge("fuse", t_decode, wall_fuse)
-        entry[0] = t_fuse
-        if acc.object is not None:
-            self.health.mark(f"v2x:{acc.object.id}", t_fuse)
-        elif acc.spat is not None:
+        for entry in entries:
+            entry[0] = t_fuse
+            self.health.mark(f"v2x:{entry[1].id}", t_fuse)
+        if acc.spat is not None:
             self.signals.take_spat(acc.spat, t_fuse)
         elif acc.map is not None:
             self.signals.take_map(acc.map, t_fuse)

@@ -7,7 +7,8 @@ Each frame (a J2735 MessageFrame in the 1609.2-style signed envelope) passes:
    untrusted (another CA, expired), out of the time window, unknown signer,
    unsecured: rejected with that reason, counted, never acted on;
 2. the PSID must fit the message: a BSM under 0x20 (a vehicle's own) or 0x7F
-   (a surrogate BSM from an RSU), SPaT/MAP under 0x82 (`psid-mismatch`);
+   (a surrogate BSM from an RSU), SPaT/MAP under 0x82, an SDSM under one of
+   `obu.sdsm_psids` (deployments differ; 0x90 by default) (`psid-mismatch`);
 3. decode (bridges.j2735), convert latitude/longitude to local metres with the
    world's origin (bridges.geo), heading (degrees clockwise from north) to yaw
    (radians counter-clockwise from east);
@@ -16,6 +17,18 @@ Each frame (a J2735 MessageFrame in the 1609.2-style signed envelope) passes:
 
 The BSM position is the centre of the vehicle (SAE J2735 / J2945/1 reference
 point), as the planner's boxes are.
+
+An SDSM (SAE J3224, messageId 41) is an RSU's report of every object it
+detects, so each of its objects becomes a V2X object like a surrogate BSM's
+(`surrogate`: the self-recognition rules for an RSU's estimate apply, so the
+ego's own entry is left out): the position is the reference point plus the
+object's offsets east and north, at the message's timestamp plus the object's
+measurementTime; the position confidence (a 95 % bound) gives the fusion's
+noise as sigma = bound / 2.45 (the 95 % radius of a 2-D Gaussian), or
+`position_sigma` when unavailable; the id is the sender's TemporaryID and the
+objectID (stable while the sender tracks it); a vehicle whose BasicVehicleClass
+is one of the emergency types (60-69) is an emergency vehicle. Objects that
+are not vehicles or VRUs (obstacles, unknown) are left to the lidar.
 """
 from __future__ import annotations
 
@@ -28,6 +41,7 @@ from bridges.geo import GeoOrigin
 from bridges.j2735 import J2735Error, default_codec
 from bridges.j2735.bsm import Bsm
 from bridges.j2735.map import MapData
+from bridges.j2735.sdsm import POSITION_CONFIDENCE, Sdsm
 from bridges.j2735.spat import Spat
 from bridges.security import (PSID_BSM, PSID_SPAT_MAP, PSID_SURROGATE_BSM, VerificationError, Verifier,
                               time64_us)
@@ -36,9 +50,12 @@ from bridges.v2x import unix_time
 
 from av_app.config import ObuSection
 
-BSM_ID, SPAT_ID, MAP_ID = 20, 19, 18
+BSM_ID, SPAT_ID, MAP_ID, SDSM_ID = 20, 19, 18, 41
 _PSIDS = {BSM_ID: (PSID_BSM, PSID_SURROGATE_BSM), SPAT_ID: (PSID_SPAT_MAP,), MAP_ID: (PSID_SPAT_MAP,)}
-KINDS = {BSM_ID: "bsm", SPAT_ID: "spat", MAP_ID: "map"}
+KINDS = {BSM_ID: "bsm", SPAT_ID: "spat", MAP_ID: "map", SDSM_ID: "sdsm"}
+EMERGENCY_CLASSES = range(60, 70)  # J2735 BasicVehicleClass: the emergency vehicle types
+POSITION_95_SIGMAS = 2.45  # a 2-D Gaussian's 95 % radius in sigmas (the RSU app writes the bound so)
+SDSM_KINDS = ("vehicle", "vru")
 
 
 @dataclass(frozen=True)
@@ -65,9 +82,10 @@ class V2xObject:
 class Accepted:
     """A frame that passed: its kind, its content, the charged stage times."""
 
-    kind: str  # bsm | spat | map
+    kind: str  # bsm | spat | map | sdsm
     station: str
     object: V2xObject | None = None
+    objects: list[V2xObject] = field(default_factory=list)  # an SDSM's
     spat: Spat | None = None
     map: MapData | None = None
     object_id: str = ""
@@ -148,7 +166,8 @@ class Obu:
         kind = KINDS.get(frame.message_id)
         if kind is None or frame.message is None:
             raise Rejected("unsupported", f"messageId {frame.message_id}")
-        if verified.secured and verified.psid not in _PSIDS[frame.message_id]:
+        allowed = tuple(self.cfg.sdsm_psids) if frame.message_id == SDSM_ID else _PSIDS[frame.message_id]
+        if verified.secured and verified.psid not in allowed:
             raise Rejected("psid-mismatch", f"{kind} signed under PSID {verified.psid:#x}")
         station = verified.signer or "unsecured"
         out = Accepted(kind, station)
@@ -159,6 +178,13 @@ class Obu:
                 raise Rejected("undecodable", f"BSM: {exc}") from None
             out.object = self._object(bsm, verified, t_arrival, station)
             out.object_id = out.object.id
+        elif frame.message_id == SDSM_ID:
+            try:
+                sdsm = Sdsm.from_asn1(frame.message)
+            except (J2735Error, KeyError, TypeError, ValueError) as exc:
+                raise Rejected("undecodable", f"SDSM: {exc}") from None
+            out.objects = self._sdsm_objects(sdsm, t_arrival, station)
+            out.object_id = ",".join(o.id for o in out.objects)
         elif frame.message_id == SPAT_ID:
             try:
                 out.spat = Spat.from_asn1(frame.message)
@@ -195,3 +221,35 @@ class Obu:
             length=bsm.length or self.cfg.default_length, width=bsm.width or self.cfg.default_width,
             emergency=emergency, surrogate=verified.psid == PSID_SURROGATE_BSM, pos_std=float(std),
             msg_count=bsm.msg_count)
+
+    def _sdsm_objects(self, sdsm: Sdsm, t_arrival: float, station: str) -> list[V2xObject]:
+        if sdsm.latitude is None or sdsm.longitude is None:
+            raise Rejected("incomplete", "SDSM without a reference position")
+        stamp = sdsm.timestamp.to_unix()
+        if stamp is None:
+            raise Rejected("incomplete", "SDSM without a full timestamp (year to second)")
+        t_msg = stamp - self.epoch
+        x0, y0, _ = self.origin.to_local(sdsm.latitude, sdsm.longitude, sdsm.elevation)
+        source = bytes(sdsm.source_id).hex()
+        out = []
+        for o in sdsm.objects:
+            if o.object_type not in SDSM_KINDS:
+                continue
+            t_meas = round(t_msg + o.measurement_time, 3)
+            if t_arrival - t_meas > self.cfg.max_age_s:
+                raise Rejected("stale", f"object {o.object_id} measured {t_arrival - t_meas:.3f} s before arrival")
+            yaw = math.radians(90.0 - o.heading) if o.heading is not None else 0.0
+            bound = POSITION_CONFIDENCE.bound(o.position_confidence)
+            d = o.details
+            length = getattr(d, "length", None) or self.cfg.default_length
+            width = getattr(d, "width", None) or self.cfg.default_width
+            cls = getattr(d, "vehicle_class", None)
+            out.append(V2xObject(
+                id=f"sdsm:{source}:{o.object_id}", station=station, t=t_meas, x=float(x0 + o.offset_x),
+                y=float(y0 + o.offset_y), yaw=(yaw + math.pi) % (2 * math.pi) - math.pi,
+                speed=float(o.speed or 0.0),
+                yaw_rate=-math.radians(o.acceleration.yaw_rate) if o.acceleration is not None else 0.0,
+                length=float(length), width=float(width), emergency=cls in EMERGENCY_CLASSES, surrogate=True,
+                pos_std=bound / POSITION_95_SIGMAS if bound is not None else self.cfg.position_sigma,
+                msg_count=sdsm.msg_count))
+        return out

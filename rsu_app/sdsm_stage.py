@@ -21,7 +21,11 @@ under the configured PSID (`[v2x] sdsm_psid`; deployments differ). Per object:
   Gaussian), speed and heading 1.96 sigma along and across the velocity;
   time to the millisecond the frame times carry;
 * detVeh: the class's typical length, width and height (`geo.VEHICLE_SIZE`),
-  as the surrogate BSM does.
+  as the surrogate BSM does, and its J2735 BasicVehicleClass where the
+  detector's class names one (car: 10, passenger vehicle; emergency: 60, an
+  emergency vehicle of unknown type) with the box's score as its confidence:
+  the SDSM has no siren or lightbar flags, so this is how a receiver learns
+  that the vehicle is an emergency one.
 
 The message's trace stamps are those of its oldest frame (the E2E latency of
 the message is that of its stalest object). At most 256 objects fit: the
@@ -53,6 +57,7 @@ OBJECT_TYPES = {"car": "vehicle", "emergency": "vehicle", "truck": "vehicle", "b
                 "person": "vru", "pedestrian": "vru", "bicycle": "vru", "cyclist": "vru"}
 POSITION_95 = 2.4477   # sqrt(chi2(2 dof, 0.95)): the 95 % radius of a 2-D Gaussian in sigmas
 ONE_D_95 = 1.96
+VEHICLE_CLASSES = {"car": 10, "emergency": 60}  # J2735 BasicVehicleClass: passenger-Vehicle, emergency-TypeUnknown
 TIME_CONFIDENCE = "time-000-001"  # frame times are exact in the simulation; the wire carries milliseconds
 MIN_HEADING_SPEED = 0.5  # m/s: below, a heading's confidence from the velocity covariance means nothing
 
@@ -137,7 +142,10 @@ class SdsmStage:
             speed_confidence=SPEED_CONFIDENCE.name_for(None if sigma_speed is None else ONE_D_95 * sigma_speed),
             heading_confidence=HEADING_CONFIDENCE.name_for(
                 None if sigma_heading is None or heading is None else ONE_D_95 * sigma_heading),
-            details=VehicleDetails(width=width, length=length, height=height) if kind == "vehicle" else None)
+            details=VehicleDetails(width=width, length=length, height=height,
+                                   vehicle_class=VEHICLE_CLASSES.get(s.label),
+                                   class_confidence=None if s.label not in VEHICLE_CLASSES or score is None
+                                   else min(100, max(0, round(100 * score)))) if kind == "vehicle" else None)
 
     def sdsm(self, states: list[TrackState], t: float, stamps: dict[int, TrackStamps]) -> Sdsm:
         chosen = sorted(states, key=lambda s: s.id)[:MAX_OBJECTS]

@@ -73,11 +73,16 @@ command = ["{{python}}", "-m", "av_app", "--config", "apps/av.toml", "--can-port
 @pytest.fixture(scope="module")
 def runs(study, tmp_path_factory):
     out = tmp_path_factory.mktemp("case-runs")
-    jobs = {(cps, policy): ("ima_case_study.toml" if cps else "ima_no_cps.toml", policy,
+    jobs = {(cps, policy): (study, "ima_case_study.toml" if cps else "ima_no_cps.toml", policy,
                             out / f"{'cps' if cps else 'no_cps'}-{policy}")
             for cps in (True, False) for policy in ("fixed", "measured")}
-    jobs["again"] = ("ima_case_study.toml", "fixed", out / "cps-fixed-again")
-    return run_pairwise(lambda job: run_case(study, *job), jobs)
+    jobs["again"] = (study, "ima_case_study.toml", "fixed", out / "cps-fixed-again")
+    # a copy of its own: its first run re-issues the rsu certificate with the SDSM's PSID, which must not
+    # happen under a run beside it that reads the same keys
+    sdsm_study = copy_study(tmp_path_factory.mktemp("case-study-sdsm"),
+                            ("ima_world.toml", "ima_case_study.toml", "ima_case_study_sdsm.toml"))
+    jobs["sdsm"] = (sdsm_study, "ima_case_study_sdsm.toml", "fixed", out / "sdsm-fixed")
+    return run_pairwise(lambda job: run_case(*job), jobs)
 
 
 @pytest.mark.parametrize("policy", ["fixed", "measured"])
@@ -120,6 +125,24 @@ def test_the_connected_vehicle_reacted_earlier_with_the_rsu(runs):
         return next(p["t"] for p in run["plans"] if p.get("decision") in ("yield", "brake_hard", "go", "go_unsafe"))
 
     assert first_reaction(runs[(True, "fixed")]) < first_reaction(runs[(False, "fixed")]) - 0.5
+
+
+def test_with_sdsm_in_place_of_surrogate_bsms_the_verdict_is_the_same(runs):
+    """scenarios/ima_case_study_sdsm.toml (issue 40): the RSU sends one SDSM per slot and no surrogate BSM; the
+    AV app fuses the SDSM's objects, takes the ev for an emergency vehicle from its vehicle class, and yields."""
+    run = runs["sdsm"]
+    m = run["metrics"]
+    assert m["collision"] is False and m["min_gap_m"] > 0.5 and m["pet_s"] is not None and m["pet_s"] > 0, \
+        run["stdout"]
+    assert m["pdr"]["rsu->cav"]["delivered"] > 50 and "collision: false" in run["stdout"]
+    for stage in ("stage1", "stage2", "air", "stage3", "e2e"):  # the chain, measured through the SDSM
+        assert m["latency_ms"][stage]["n"] > 10, stage
+    ids = {o[0] for p in run["plans"] for o in p.get("objects", [])}
+    assert any(i.startswith("sdsm:") for i in ids) and not any(i.startswith("v2x:") for i in ids)
+    reactions = [p for p in run["plans"] if p.get("decision") in ("yield", "brake_hard", "go", "go_unsafe")]
+    assert reactions[0]["cause"].startswith("sdsm:")  # it reacted to the RSU's report of the ev
+    assert reactions[0]["t"] < next(p["t"] for p in runs[(False, "fixed")]["plans"]
+                                    if p.get("decision") in ("yield", "brake_hard", "go", "go_unsafe")) - 0.5
 
 
 def test_the_report_of_the_run_shows_every_plot_and_a_clip_of_every_camera_frame(runs):

@@ -112,7 +112,8 @@ def test_one_object_from_a_track_and_its_covariance():
     assert o.position_confidence == "a50cm" and POSITION_CONFIDENCE.bound(o.position_confidence) == 0.5
     assert o.speed_confidence == "prec1ms" and SPEED_CONFIDENCE.bound(o.speed_confidence) == 1
     assert o.heading_confidence == "prec01deg" and HEADING_CONFIDENCE.bound(o.heading_confidence) == 1
-    assert o.details == VehicleDetails(width=2.3, length=6.5, height=2.6)
+    # the class says emergency (BasicVehicleClass 60), with the box score as its confidence
+    assert o.details == VehicleDetails(width=2.3, length=6.5, height=2.6, vehicle_class=60, class_confidence=88)
     slow = stage.detected_object(_track(vx=0.1, speed=0.1, heading=None), t=10.0, frame_t=None)
     assert slow.measurement_time == 0.0 and slow.heading is None and slow.heading_confidence == "unavailable"
     assert (slow.offset_x, slow.offset_y) == (12.0, -3.0)
