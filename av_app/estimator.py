@@ -137,8 +137,10 @@ class CollisionEstimator:
         """The fraction (0..1) of the object's corridor width that the ego, standing at rear-axle `pose`,
         would block: the corridor is the band the object sweeps ahead of its rear along its heading, its
         width wide (plus the margin on each side), its centre line `lane_shift` m to the object's left (the
-        lane's centre where the map knows it: a lidar box's centre is biased toward the sensor). 0: the
-        object passes the standing ego without touching it; 1: the ego stands across its whole way."""
+        lane's centre where the map knows it: a lidar box's centre is biased toward the sensor). A lidar
+        object's width is what its points showed (0 when they lie in a line, as a car seen end-on does), so
+        the corridor is never narrower than the ego: a vehicle is at least a car wide. 0: the object passes
+        the standing ego without touching it; 1: the ego stands across its whole way."""
         v, m = self.vehicle, self.cfg.margin_m / 2
         off = v.length / 2 - v.rear_overhang
         box = corners(pose[0] + off * math.cos(pose[2]), pose[1] + off * math.sin(pose[2]), pose[2], v.length,
@@ -146,7 +148,7 @@ class CollisionEstimator:
         u, lat = to_frame(box[:, 0], box[:, 1], (o.x, o.y, o.yaw))
         if float(np.max(u)) < -o.length / 2:
             return 0.0  # wholly behind the object
-        half = o.width / 2 + m
+        half = max(o.width, v.width) / 2 + m
         lo, hi = lane_shift - half, lane_shift + half
         return max(0.0, min(float(np.max(lat)), hi) - max(float(np.min(lat)), lo)) / (2 * half)
 

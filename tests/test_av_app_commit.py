@@ -167,6 +167,23 @@ def test_the_blocked_fraction_is_the_standing_footprints_share_of_the_corridor()
     assert est.blocked(biased, pose) > est.blocked(biased, pose, 0.9)
 
 
+def test_an_object_of_no_measured_width_has_a_car_wide_corridor():
+    """A lidar cluster seen end-on measures 0 m wide; the ev it stands for is not: the ego standing 0.5 m into
+    the lane blocks a car-wide corridor (the ego's width), not a 0.4 m one it would seem to miss."""
+    from av_app.config import PlannerSection, VehicleSection
+    from av_app.estimator import CollisionEstimator
+
+    veh, pl = VehicleSection(), PlannerSection()
+    est = CollisionEstimator(pl, veh)
+    front = veh.length - veh.rear_overhang
+    half = veh.width / 2 + pl.margin_m / 2
+    thin = _object(-30.0, -1.75, 0.0, width=0.0)
+    into = 0.5
+    pose = (1.75, -1.75 - half + into - front, math.pi / 2)
+    assert est.blocked(thin, pose) == pytest.approx(into / (2 * half))
+    assert est.blocked(thin, (1.75, -1.75 - half - 0.05 - front, math.pi / 2)) == 0.0
+
+
 @pytest.mark.parametrize("x, y, yaw, shift", [
     (-30.0, -2.65, 0.0, 0.9),              # eastbound, its box biased south: the lane centre is 0.9 m left
     (-2.0, -2.65, 0.0, 0.9),               # in the junction box its heading names the road
