@@ -92,6 +92,13 @@ class Accepted:
     wall_s: dict[str, float] = field(default_factory=dict)  # measured compute per stage
 
 
+def yaw_of(heading_deg: float | None) -> float:
+    """The local frame's yaw (rad from east, counter-clockwise, in [-pi, pi)) of a J2735 heading (degrees
+    clockwise from north; None: unavailable, taken as east as the BSM and SDSM fusion always has)."""
+    yaw = math.radians(90.0 - heading_deg) if heading_deg is not None else 0.0
+    return (yaw + math.pi) % (2 * math.pi) - math.pi
+
+
 class Rejected(Exception):
     """A frame not acted on; `reason` is the tally key."""
 
@@ -209,8 +216,7 @@ class Obu:
             raise Rejected("stale", f"measured {t_arrival - t_meas:.3f} s before its arrival")
         x, y, _ = self.origin.to_local(bsm.latitude, bsm.longitude, bsm.elevation)
         speed = bsm.speed if bsm.speed is not None else 0.0
-        yaw = math.radians(90.0 - bsm.heading) if bsm.heading is not None else 0.0
-        yaw = (yaw + math.pi) % (2 * math.pi) - math.pi
+        yaw = yaw_of(bsm.heading)
         em = bsm.emergency
         emergency = em is not None and (em.siren == "inUse" or em.lightbar == "inUse" or em.response_type in (
             "emergency", "pursuit"))
@@ -231,14 +237,16 @@ class Obu:
         t_msg = stamp - self.epoch
         x0, y0, _ = self.origin.to_local(sdsm.latitude, sdsm.longitude, sdsm.elevation)
         source = bytes(sdsm.source_id).hex()
-        out = []
+        out, stale = [], []
         for o in sdsm.objects:
             if o.object_type not in SDSM_KINDS:
                 continue
             t_meas = round(t_msg + o.measurement_time, 3)
             if t_arrival - t_meas > self.cfg.max_age_s:
-                raise Rejected("stale", f"object {o.object_id} measured {t_arrival - t_meas:.3f} s before arrival")
-            yaw = math.radians(90.0 - o.heading) if o.heading is not None else 0.0
+                # one object measured long ago (a track the sender coasts) says nothing of the others in
+                # the message: it is left out and counted, the rest are fused
+                stale.append(f"{o.object_id} ({t_arrival - t_meas:.3f} s)")
+                continue
             bound = POSITION_CONFIDENCE.bound(o.position_confidence)
             d = o.details
             length = getattr(d, "length", None) or self.cfg.default_length
@@ -246,10 +254,13 @@ class Obu:
             cls = getattr(d, "vehicle_class", None)
             out.append(V2xObject(
                 id=f"sdsm:{source}:{o.object_id}", station=station, t=t_meas, x=float(x0 + o.offset_x),
-                y=float(y0 + o.offset_y), yaw=(yaw + math.pi) % (2 * math.pi) - math.pi,
+                y=float(y0 + o.offset_y), yaw=yaw_of(o.heading),
                 speed=float(o.speed or 0.0),
                 yaw_rate=-math.radians(o.acceleration.yaw_rate) if o.acceleration is not None else 0.0,
                 length=float(length), width=float(width), emergency=cls in EMERGENCY_CLASSES, surrogate=True,
                 pos_std=bound / POSITION_95_SIGMAS if bound is not None else self.cfg.position_sigma,
                 msg_count=sdsm.msg_count))
+        if stale and not out:
+            raise Rejected("stale", f"every object measured too long before arrival: {', '.join(stale)}")
+        self.rejected["stale-object"] += len(stale)
         return out

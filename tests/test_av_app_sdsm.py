@@ -109,6 +109,16 @@ def test_a_stale_or_placeless_sdsm_is_rejected_with_its_reason(pki):
     assert obu.rejected == {"stale": 1, "incomplete": 1}
 
 
+def test_a_stale_object_is_left_out_and_counted_the_rest_are_fused(pki):
+    """A track the sender coasts (measured 1.2 s before) does not take the fresh objects of its message
+    down with it: the stale one is left out and counted, the other fused."""
+    obu = make_obu(pki)
+    mixed = signed(pki["rsu"], sdsm(1.0, [vehicle(1, -30.0, -1.75, back=1.2), vehicle(2, -50.0, -1.75)]), 1.0,
+                   SDSM_PSID)
+    assert [o.id for o in obu.receive(mixed, 1.01).objects] == ["sdsm:0a0b0c0d:2"]
+    assert obu.rejected == {"stale-object": 1}
+
+
 def test_bad_sdsm_psids_are_named():
     for bad in ([], ["0x90"], [-1], [True]):
         with pytest.raises(ConfigError) as exc:
