@@ -17,12 +17,26 @@ second, its digest otherwise, as the RSU sends), and a receiver verifies
   `cycles` cycles;
 * verify+decode per cycle: every frame of the cycle verified and decoded to
   the typed message, likewise;
-* through the channel model (fmus/channel, 802.11p at 6 Mb/s, 23 dBm, NIST
-  error model so that PER depends on the frame's length, no other traffic):
-  the RSU's own airtime per second (its share of the channel busy ratio,
-  MAC header included) and the expected PDR of its frames at 100, 200 and
-  300 m (an SDSM lost loses every object in it; a BSM lost loses one).
-  C-V2X and a loaded channel are not compared here.
+* through the channel model (fmus/channel), three radios:
+  - 802.11p at 6 Mb/s, 23 dBm, NIST error model so that PER depends on the
+    frame's length, no other traffic: the RSU's own airtime per second (its
+    share of the channel busy ratio, MAC header included) and the expected PDR
+    of its frames at 100, 200 and 300 m (an SDSM lost loses every object in
+    it; a BSM lost loses one);
+  - the same channel loaded by other stations to a CBR of 0.6 (the model's
+    hidden-terminal and collision losses): PDR at 200 m;
+  - C-V2X mode 4 (4 subchannels per subframe, the published BLER table,
+    which is for the 190-byte resource, so the PDR does not depend on the
+    length): the RSU's own share of the resources per second, a frame taking
+    ceil(bytes / 190) subchannel resources at that MCS (a stated
+    approximation: a larger transport block uses more subchannels), and the
+    PDR at 200 m;
+* with --e2e, the case study run twice under the `measured` latency policy
+  (the apps' real compute charged in simulated time), once with surrogate
+  BSMs (scenarios/ima_case_study.toml) and once with SDSM
+  (scenarios/ima_case_study_sdsm.toml), in parallel: their E2E latency
+  (camera frame to the cav's plan) p50 and p99, and their verdicts. About 2
+  minutes on 2 cores.
 
 Prints a table and writes JSON (default benchmarks/results/sdsm_vs_bsm.json).
 """
@@ -31,8 +45,11 @@ from __future__ import annotations
 import argparse
 import math
 import random
+import json
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -123,6 +140,18 @@ def measure(kind: str, n: int, cycles: int, ca, credentials, epoch: float, seed:
 
 
 PDR_DISTANCES_M = (100.0, 200.0, 300.0)
+LOADED_CBR = 0.6
+CV2X_RESOURCE_BYTES = 190  # the DATA field the C-V2X BLER table was published for (fmus/channel/errors.py)
+
+
+def _pdr(model: ChannelModel, frame_bytes: list[int], distances=PDR_DISTANCES_M) -> dict:
+    """The mean expected PDR of these frames at each distance (LOS road)."""
+    out = {}
+    for d in distances:
+        links = model.evaluate(np.zeros((len(frame_bytes), 3)), np.tile([d, 0.0, 0.0], (len(frame_bytes), 1)),
+                               packet_bytes=np.asarray(frame_bytes))
+        out[f"{d:g}"] = float(np.mean(links.pdr))
+    return out
 
 
 def channel_figures(model: ChannelModel, frame_bytes: list[int]) -> dict:
@@ -130,12 +159,37 @@ def channel_figures(model: ChannelModel, frame_bytes: list[int]) -> dict:
     p = model.p
     airtime = float(sum(channel_errors.ofdm_80211p_airtime_s(b + p.mac_header_bytes, p.data_rate_bps, p.bandwidth_hz)
                         for b in frame_bytes))
-    pdr = {}
-    for d in PDR_DISTANCES_M:
-        links = model.evaluate(np.zeros((len(frame_bytes), 3)), np.tile([d, 0.0, 0.0], (len(frame_bytes), 1)),
-                               packet_bytes=np.asarray(frame_bytes))
-        pdr[f"{d:g}"] = float(np.mean(links.pdr))
-    return {"own_busy_ratio": airtime, "pdr": pdr}
+    return {"own_busy_ratio": airtime, "pdr": _pdr(model, frame_bytes)}
+
+
+def cv2x_figures(model: ChannelModel, frame_bytes: list[int]) -> dict:
+    """The RSU's own share of C-V2X mode 4 resources in one second of these frames (subchannels x 1000
+    subframes a second; a frame takes ceil(bytes / 190) resources), and the frames' PDR at 200 m."""
+    resources = sum(math.ceil(b / CV2X_RESOURCE_BYTES) for b in frame_bytes)
+    return {"own_resource_share": resources / (model.p.cv2x_subchannels * 1000.0),
+            "pdr": _pdr(model, frame_bytes, (200.0,))}
+
+
+CASE_STUDIES = {"bsm": "scenarios/ima_case_study.toml", "sdsm": "scenarios/ima_case_study_sdsm.toml"}
+
+
+def case_study_e2e() -> dict:
+    """Both case studies at once under the `measured` latency policy: E2E p50/p99 (ms) and the verdict."""
+    out = {}
+    with tempfile.TemporaryDirectory(prefix="sdsm-e2e-") as tmp:
+        procs = {kind: subprocess.Popen(
+            [sys.executable, "-m", "master.cli", "run", str(ROOT / scen), "--out", f"{tmp}/{kind}",
+             "--set", "bridge.latency=measured", "--set", "record.camera=false"],
+            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) for kind, scen in CASE_STUDIES.items()}
+        for kind, proc in procs.items():
+            _, err = proc.communicate(timeout=900)
+            if proc.returncode != 0:
+                raise SystemExit(f"case study with {kind}: v2i run exited {proc.returncode}: {err[-2000:]}")
+            m = json.loads(Path(f"{tmp}/{kind}/metrics.json").read_text())
+            e2e = m["latency_ms"]["e2e"]
+            out[kind] = {"e2e_p50_ms": e2e["p50"], "e2e_p99_ms": e2e["p99"], "n": e2e["n"],
+                         "collision": m["collision"], "min_gap_m": m["min_gap_m"]}
+    return out
 
 
 def main(argv=None) -> int:
@@ -145,6 +199,7 @@ def main(argv=None) -> int:
     p.add_argument("--cycles", type=int, default=20, help="10 Hz cycles per repeat (>= 10: one second)")
     p.add_argument("--json", type=Path, default=DEFAULT_JSON)
     p.add_argument("--quick", action="store_true", help="2 repeats of 10 cycles (a smoke run)")
+    p.add_argument("--e2e", action="store_true", help="also run both case studies (measured latency) for E2E")
     args = p.parse_args(argv)
     if args.quick:
         args.repeats, args.cycles = 2, 10
@@ -157,6 +212,8 @@ def main(argv=None) -> int:
     rows, report = [], {"machine": machine_info(), "rate_hz": RATE_HZ, "repeats": args.repeats,
                         "cycles": args.cycles, "results": {}}
     dsrc = ChannelModel(technology="dsrc", error_model="nist").prepare()
+    loaded = ChannelModel(technology="dsrc", error_model="nist", cbr_target=LOADED_CBR).prepare()
+    cv2x = ChannelModel(technology="cv2x", error_model="lut").prepare()
     for kind in ("bsm", "sdsm"):  # warm-up: the codec compiles its ASN.1 on first use, caches fill
         measure(kind, 2, int(RATE_HZ), ca, credentials, epoch, seed=0)
     for n in counts:
@@ -170,6 +227,8 @@ def main(argv=None) -> int:
                 "encode_sign_ms": summary([r["encode_sign_ms"] for r in runs]),
                 "verify_decode_ms": summary([r["verify_decode_ms"] for r in runs]),
                 "dsrc": channel_figures(dsrc, runs[0]["frame_bytes"]),
+                "dsrc_loaded": {"cbr": LOADED_CBR, "pdr": _pdr(loaded, runs[0]["frame_bytes"], (200.0,))},
+                "cv2x": cv2x_figures(cv2x, runs[0]["frame_bytes"]),
             }
         report["results"][str(n)] = entry
         b, s = entry["bsm"], entry["sdsm"]
@@ -178,14 +237,25 @@ def main(argv=None) -> int:
                      b["verify_decode_ms"]["median"], s["verify_decode_ms"]["median"],
                      100 * b["dsrc"]["own_busy_ratio"], 100 * s["dsrc"]["own_busy_ratio"],
                      b["dsrc"]["pdr"]["200"], s["dsrc"]["pdr"]["200"], b["dsrc"]["pdr"]["300"],
-                     s["dsrc"]["pdr"]["300"]))
+                     s["dsrc"]["pdr"]["300"], b["dsrc_loaded"]["pdr"]["200"], s["dsrc_loaded"]["pdr"]["200"],
+                     100 * b["cv2x"]["own_resource_share"], 100 * s["cv2x"]["own_resource_share"],
+                     b["cv2x"]["pdr"]["200"], s["cv2x"]["pdr"]["200"]))
     header = ("objects", "BSM fr/s", "SDSM fr/s", "BSM B/s", "SDSM B/s", "BSM enc+sign ms", "SDSM enc+sign ms",
               "BSM ver+dec ms", "SDSM ver+dec ms", "BSM airtime %", "SDSM airtime %", "BSM PDR 200 m",
-              "SDSM PDR 200 m", "BSM PDR 300 m", "SDSM PDR 300 m")
+              "SDSM PDR 200 m", "BSM PDR 300 m", "SDSM PDR 300 m", f"BSM PDR 200 m CBR {LOADED_CBR}",
+              f"SDSM PDR 200 m CBR {LOADED_CBR}", "BSM C-V2X res. %", "SDSM C-V2X res. %", "BSM C-V2X PDR 200 m",
+              "SDSM C-V2X PDR 200 m")
     print(" | ".join(header))
     print(" | ".join("---" for _ in header))
     for row in rows:
         print(" | ".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row))
+    if args.e2e:
+        report["case_study_e2e"] = e2e = case_study_e2e()
+        print("\ncase study (measured latency) | E2E p50 ms | E2E p99 ms | records | collision | min gap m")
+        print("--- | --- | --- | --- | --- | ---")
+        for kind, r in e2e.items():
+            print(f"{kind} | {r['e2e_p50_ms']:.1f} | {r['e2e_p99_ms']:.1f} | {r['n']} | {r['collision']} | "
+                  f"{r['min_gap_m']:.2f}")
     write_report(args.json, report)
     return 0
 
