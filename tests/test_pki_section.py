@@ -24,6 +24,27 @@ def test_made_once_then_kept(tmp_path):
     assert rsu.psids == {0x7F, 0x82} and rsu.issuer_digest == ca.digest
 
 
+def _ensure_after(barrier, directory) -> bytes:
+    barrier.wait()
+    ensure(PkiSpec(directory, dict(STATIONS)))
+    return load_credentials(directory, "rsu").certificate.issuer_digest
+
+
+def test_runs_starting_at_once_make_one_ca(tmp_path):
+    """Four processes provisioning one empty keys folder at the same instant (two `v2i run`s of scenarios in
+    one folder): one CA is made, and every station certificate each of them then reads is that CA's."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    barrier = ctx.Manager().Barrier(4)
+    with ctx.Pool(4) as pool:
+        issuers = pool.starmap(_ensure_after, [(barrier, tmp_path / "keys")] * 4)
+    ca = load_credentials(tmp_path / "keys", CA_NAME).certificate
+    assert set(issuers) == {ca.digest}
+    for name in STATIONS:
+        assert load_credentials(tmp_path / "keys", name).certificate.issuer_digest == ca.digest
+
+
 def test_expired_foreign_or_short_of_a_psid_is_issued_again(tmp_path):
     keys = tmp_path / "keys"
     ensure(PkiSpec(keys, dict(STATIONS)))

@@ -12,6 +12,12 @@ makes the CA and every station's certificate that is missing from `dir`, and
 re-issues a station certificate that has expired (or will within a day) or
 lacks a PSID. What exists and is valid is never touched, so keys copied onto a
 box stay the ones the run uses. The metadata section says what was made.
+
+Two runs of scenarios that share a keys folder may start at once (a user's two
+shells, a sweep's points, the tests two at a time): the check-and-make holds a
+file lock in that folder, so the second finds what the first made instead of
+making a second CA over it, which would leave the first run's apps with a
+certificate the other CA never issued.
 """
 from __future__ import annotations
 
@@ -19,6 +25,8 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
+
+from filelock import FileLock
 
 from master.hooks import Hook, RunContext
 from master.scenario.tables import Table
@@ -69,6 +77,14 @@ def ensure(spec: PkiSpec, now: datetime | None = None) -> dict[str, Any]:
     from bridges.security.certificates import ScenarioCA, load_credentials, time32
 
     now = now or datetime.now(timezone.utc)
+    spec.dir.mkdir(parents=True, exist_ok=True)
+    with FileLock(spec.dir / ".pki.lock"):
+        return _ensure_locked(spec, now)
+
+
+def _ensure_locked(spec: PkiSpec, now: datetime) -> dict[str, Any]:
+    from bridges.security.certificates import ScenarioCA, load_credentials, time32
+
     made, kept = [], []
     if (spec.dir / f"{CA_NAME}.key").exists():
         ca = ScenarioCA(load_credentials(spec.dir, CA_NAME))
