@@ -27,6 +27,7 @@ BASE_UNITS: dict[str, dict[str, float]] = {
     "dBi": {},
     "ms": {"s": 1, "factor": 0.001},
     "1/m": {"m": -1},
+    "1/s": {"s": -1},
     "dB/m": {"m": -1},
 }
 

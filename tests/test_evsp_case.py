@@ -38,6 +38,8 @@ def run(study: Path, base: str, out: Path, baud: int | None = None) -> dict:
     extra = ""
     if baud:
         extra = f"""
+[time]
+stop = 14.0    # the serial figures are in by then (the ev's green comes at 7.5 s)
 [fmus.tlc.parameters]
 baud = {float(baud)}
 [participants.rsu]
@@ -79,8 +81,32 @@ def test_the_ev_gets_its_green_before_it_reaches_the_stop_line(runs):
 def test_without_the_request_the_controller_keeps_its_plan_and_the_ev_meets_red(runs):
     p = runs["none"]["metrics"]["preemption"]
     assert not p["requested"] and not p["granted"] and p["srm_to_green_ms"] is None
-    # the ev (driven at constant speed: no driver model stops it) enters on the north-south green's red
-    assert p["red_violations"] == 1 and p["red_violators"] == ["ev"]
+    # its driver stops at the north-south green's red and waits for the plan's east-west green (t = 30 s)
+    assert p["red_violations"] == 0 and p["ev_stopped_s"] > 10.0
+    assert p["ev_delay_s"] >= runs["evsp"]["metrics"]["preemption"]["ev_delay_s"] + 2.0
+    # the cross-street car keeps its green
+    assert p["cross_delay_s"] is not None and p["cross_delay_s"] < 1.0
+
+
+def test_cross_traffic_stops_on_the_red_the_preemption_gives_it(runs):
+    """The car from the south on phase 2 (its driver looks at the head facing it) meets the preemption's
+    yellow far enough out to stop, stands at its line, and goes on when the preemption exits; nobody enters
+    on red in either run."""
+    import csv
+    import io
+
+    p = runs["evsp"]["metrics"]["preemption"]
+    assert p["red_violations"] == 0 and p["red_violators"] == []
+    assert p["cross_delay_s"] > 5.0
+    rows = list(csv.DictReader(io.StringIO(runs["evsp"]["series"].decode())))
+    standing = [r for r in rows if float(r["car.v"]) < 0.05]
+    assert standing, "the cross-street car never stopped"
+    front = max(float(r["car.y"]) for r in standing) + 3.7
+    assert -7.0 <= front <= -5.5  # short of its stop line (y = -5.5), not in the junction
+    assert {float(r["tlc.state_2"]) for r in standing} >= {3.0}
+    t_green = next(float(r["time"]) for r in rows if float(r["time"]) > float(standing[0]["time"])
+                   and float(r["tlc.state_2"]) in (5.0, 6.0))
+    assert float(standing[-1]["time"]) <= t_green + 0.2  # it stood for red, and went when it turned green
 
 
 def test_the_serial_leg_costs_what_the_rs232_model_says(runs):
