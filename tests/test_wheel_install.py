@@ -132,7 +132,7 @@ def test_installed_user_decodes_builds_and_runs_outside_the_checkout(user):
 
     cache = Path(env["XDG_CACHE_HOME"]) / "v2i-cosim" / "fmus"
     assert sorted(p.name for p in cache.glob("*.fmu")) == [
-        "TrafficLightController.fmu", "V2XChannel.fmu", "VehicleDynamics.fmu"]
+        "SignalDriver.fmu", "TrafficLightController.fmu", "V2XChannel.fmu", "VehicleDynamics.fmu"]
     assert str(cache / "VehicleDynamics.fmu") in outputs[1]
     assert (folder / "v2i-examples" / "apps" / "av.toml").is_file()
     (run,) = (folder / "runs").iterdir()
