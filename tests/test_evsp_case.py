@@ -120,3 +120,15 @@ def test_the_serial_leg_costs_what_the_rs232_model_says(runs):
     for p, wire in ((fast, wire_fast), (slow, wire_slow)):
         assert p["stages_ms"]["serial_round_trip"] >= wire + 10.0 - 10.0   # less one 10 ms step: tick-dated
 
+
+
+def test_the_report_shows_the_preemption(runs):
+    """report.html is not IMA-only: a preemption run's page carries its figures and a signal timeline."""
+    from master.report.page import write_report
+
+    page, _ = write_report([runs["evsp"]["dir"]])
+    text = page.read_text()
+    for row in ("preemption granted", "preemption srm_to_green_ms", "preemption ev_delay_s",
+                "preemption red_violations", "preemption cross_delay_s", "preemption stage serial_wire"):
+        assert f"<th>{row}</th>" in text, row
+    assert "alt='signal timeline' src='data:image/png;base64," in text

@@ -5,7 +5,10 @@ alone: the verdict and metrics, top-down trajectories with time marks and
 the buildings, speed profiles, the distance between the vehicles' footprints
 over time, latency histograms per stage, and the RSU camera's clip (H.264
 MP4 through PyAV) with what the RSU app reported for each frame (detections,
-track ids, the BSM sent for each) drawn on it. PNG plots and the clip are
+track ids, the BSM sent for each) drawn on it. A run with signal preemption
+(metrics.json's `preemption`) also gets its figures and a signal timeline:
+each signal group's state over time, the first SRM and the ev's green marked,
+under the vehicles' speeds. PNG plots and the clip are
 embedded (base64), so the page can be mailed or archived as one file; the
 clip is also written beside it (`camera.mp4`).
 
@@ -124,13 +127,13 @@ def _json(path: Path) -> dict[str, Any]:
 
 
 # -- plots -----------------------------------------------------------------------------------------------
-def _figure(width: float = 7.0, height: float = 4.5):
+def _figure(width: float = 7.0, height: float = 4.5, **subplots):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    return plt.subplots(figsize=(width, height), dpi=100)
+    return plt.subplots(figsize=(width, height), dpi=100, **subplots)
 
 
 def _png(fig) -> bytes:
@@ -269,6 +272,49 @@ def plot_distance(runs: list[Run]) -> bytes:
     return _png(fig)
 
 
+_STATE_COLOURS = {1.0: "#444444", 3.0: "#d62728", 5.0: "#2ca02c", 6.0: "#2ca02c", 7.0: "#f0c000", 8.0: "#f0c000"}
+
+
+def plot_signals(run: Run) -> bytes | None:
+    """Each signal group's state (J2735 MovementPhaseState: dark, red, green, yellow) over time as a coloured
+    band, the first SRM and the requested group's green marked; the vehicles' speeds below. None without
+    signal states in the time series."""
+    groups = sorted((c for c in run.series if c.rsplit(".", 1)[-1].startswith("state_")),
+                    key=lambda c: int(c.rsplit("_", 1)[-1]) if c.rsplit("_", 1)[-1].isdigit() else 0)
+    if not groups or "time" not in run.series:
+        return None
+    t = run.series["time"]
+    fig, (ax, av) = _figure(7.0, 4.5 + 0.3 * len(groups), nrows=2, sharex=True,
+                            gridspec_kw={"height_ratios": [1, 1.3]})
+    for i, col in enumerate(groups):
+        state = run.series[col]
+        starts = np.flatnonzero(np.r_[True, state[1:] != state[:-1]])
+        ends = np.r_[starts[1:], len(state) - 1]
+        for a, b in zip(starts, ends):
+            ax.broken_barh([(t[a], t[b] - t[a])], (i - 0.4, 0.8), color=_STATE_COLOURS.get(float(state[a]), "#bbbbbb"))
+    ax.set_yticks(range(len(groups)), [f"group {c.rsplit('_', 1)[-1]}" for c in groups])
+    pre = run.metrics.get("preemption") or {}
+    first_srm = next((r.get("t") for r in run.traces if r.get("record") == "evsp" and r.get("kind") == "srm_sent"),
+                     None)
+    if first_srm is not None:
+        for a in (ax, av):
+            a.axvline(first_srm, color="k", ls="--", lw=1)
+        ax.annotate("first SRM", (first_srm, len(groups) - 0.5), fontsize=8)
+    if first_srm is not None and pre.get("srm_to_green_ms") is not None:
+        green = first_srm + pre["srm_to_green_ms"] / 1000.0
+        for a in (ax, av):
+            a.axvline(green, color="#2ca02c", ls="--", lw=1)
+        ax.annotate(f"group {pre.get('signal_group')} green", (green, -0.5), fontsize=8)
+    ax.set_title("signal groups (red, yellow, green, dark)")
+    for i, name in enumerate(run.vehicles()):
+        if f"{name}.v" in run.series:
+            av.plot(t, run.series[f"{name}.v"], color=_COLOURS[i % len(_COLOURS)], label=name)
+    av.set_xlabel("time (s)")
+    av.set_ylabel("speed (m/s)")
+    av.legend(fontsize=8)
+    return _png(fig)
+
+
 def stage_samples(run: Run) -> dict[str, list[float]]:
     out: dict[str, list[float]] = {name: [] for name in STAGES}
     for record in run.traces:
@@ -382,6 +428,13 @@ def _metrics_table(m: dict[str, Any]) -> str:
     for subject, s in m.get("aoi_ms", {}).items():
         if isinstance(s, dict) and "p50" in s:
             rows.append((f"AoI {subject} (ms)", f"p50 {_fmt(s.get('p50'))}, p99 {_fmt(s.get('p99'))}"))
+    pre = m.get("preemption") or {}
+    for key in ("requested", "granted", "signal_group", "srm_to_green_ms", "ev", "ev_delay_s", "ev_stopped_s",
+                "red_violations", "red_violators", "cross_delay_s"):
+        if key in pre:
+            rows.append((f"preemption {key}", _fmt(pre[key])))
+    for stage, ms in (pre.get("stages_ms") or {}).items():
+        rows.append((f"preemption stage {stage}", _fmt(ms)))
     return "<table>" + "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows) \
         + "</table>"
 
@@ -404,6 +457,8 @@ def _column(run: Run, clip: dict[str, Any] | None, clip_bytes: bytes | None) -> 
     parts.append(_metrics_table(run.metrics))
     parts.append(_img(plot_top_down(run), "top-down trajectories"))
     parts.append(_img(plot_latency(run), "latency per stage"))
+    if run.metrics.get("preemption") is not None:
+        parts.append(_img(plot_signals(run), "signal timeline"))
     if clip_bytes is not None:
         parts.append(f"<p>camera {html.escape(clip['camera'])}: {clip['frames']} frames, {clip['width']}x"
                      f"{clip['height']}, {clip['fps']:.0f} fps</p><video controls muted playsinline "
