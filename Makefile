@@ -44,6 +44,8 @@ bench: fmus $(HELDOUT)
 	$(BIN)/python benchmarks/world.py
 	$(BIN)/python benchmarks/bridges.py
 	$(BIN)/python benchmarks/perception.py
+	$(BIN)/python benchmarks/sdsm_vs_bsm.py --e2e
+	$(BIN)/python benchmarks/request_to_green.py
 
 clean:
 	rm -rf build runs
