@@ -3,7 +3,9 @@
     python benchmarks/request_to_green.py [--repeats 3] [--bauds 1200,9600,115200] [--json PATH]
 
 Both applications run end to end as a user runs them (`v2i run`, the apps as
-processes on zenoh, lockstep), two runs at a time on a 2-core machine:
+processes on zenoh, lockstep), one run at a time: the `measured` policy
+charges each stage its real compute, so a second run beside it would charge
+it that run's load too:
 
 * EVSP (scenarios/evsp.toml, to t = 14 s: the ev's green comes at 7.5 s)
   under the `measured` latency policy (the RSU app's real compute is charged
@@ -31,7 +33,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -74,10 +75,9 @@ def main(argv=None) -> int:
     jobs += [(f"evsp-9600-{r}", 9600, "scenarios/evsp.toml", evsp_sets(9600)) for r in range(args.repeats)]
     jobs += [(f"evsp-{b}", b, "scenarios/evsp.toml", evsp_sets(b)) for b in bauds if b != 9600]
     report = {"machine": machine_info(), "latency_policy": "measured", "repeats": args.repeats, "runs": {}}
-    with tempfile.TemporaryDirectory(prefix="r2g-") as tmp, ThreadPoolExecutor(max_workers=2) as pool:
-        futures = {name: pool.submit(run, scen, Path(tmp) / name, BASE_PORT + i, sets)
+    with tempfile.TemporaryDirectory(prefix="r2g-") as tmp:
+        metrics = {name: run(scen, Path(tmp) / name, BASE_PORT + i, sets)
                    for i, (name, _, scen, sets) in enumerate(jobs)}
-        metrics = {name: f.result() for name, f in futures.items()}
     for name, m in metrics.items():
         report["runs"][name] = {"preemption": m.get("preemption"), "latency_ms": m.get("latency_ms"),
                                 "collision": m.get("collision")}
