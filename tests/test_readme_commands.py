@@ -188,42 +188,17 @@ def run_problems(block: list[Command], root: Path, workdir: Path, fmu_dir: Path)
         (workdir / "examples").symlink_to(root / "examples", target_is_directory=True)
     env = {**os.environ, "PATH": f"{v2i.parent}{os.pathsep}{os.environ.get('PATH', '')}",
            "V2I_FMU_DIR": str(fmu_dir)}
-    cheap = [c for c in block if all_cheap(c)]
-    problems = []
-    for batch in batches(cheap):
-        procs = [(c, subprocess.Popen(["bash", "-o", "pipefail", "-c", c.text], cwd=workdir, env=env,
-                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)) for c in batch]
-        for command, proc in procs:
-            out, err = proc.communicate(timeout=600)
-            if proc.returncode != 0:
-                problems.append(f"{command.where}: `{command.text}` exited {proc.returncode}\n"
-                                f"stdout: {out[-2000:]}\nstderr: {err[-2000:]}")
-    return len(cheap), problems
-
-
-def is_lone_run(command: Command) -> bool:
-    """A line that is one `v2i run` and nothing else (no pipe, redirection or second command): it writes
-    only its own run folder, so it can run beside the next such line."""
-    lexer = shlex.shlex(command.text, posix=True, punctuation_chars=True)
-    lexer.whitespace_split = True
-    lexer.commenters = "#"
-    tokens = list(lexer)
-    argvs = invocations(command.text)
-    return (len(argvs) == 1 and argvs[0][:1] == ["run"] and not any(t in CONTROL or t in REDIRECT for t in tokens)
-            and "--out" not in argvs[0])
-
-
-def batches(block: list[Command], width: int = 2) -> list[list[Command]]:
-    """The block's commands in page order, consecutive lone runs paired (`width` at a time): a lockstep run
-    keeps about one core busy, so two side by side take the time of one on this 2-core machine; any other
-    line runs alone, after what comes before it, since it may read what that wrote."""
-    out: list[list[Command]] = []
+    ran, problems = 0, []
     for command in block:
-        if out and is_lone_run(command) and len(out[-1]) < width and all(is_lone_run(c) for c in out[-1]):
-            out[-1].append(command)
-        else:
-            out.append([command])
-    return out
+        if not all_cheap(command):
+            continue
+        result = subprocess.run(["bash", "-o", "pipefail", "-c", command.text], cwd=workdir, env=env,
+                                capture_output=True, text=True, timeout=600)
+        ran += 1
+        if result.returncode != 0:
+            problems.append(f"{command.where}: `{command.text}` exited {result.returncode}\n"
+                            f"stdout: {result.stdout[-2000:]}\nstderr: {result.stderr[-2000:]}")
+    return ran, problems
 
 
 def slug(heading: str) -> str:
@@ -361,15 +336,6 @@ def test_a_command_that_fails_is_named_by_page_and_line(tmp_path, fmu_dir):
     assert ran == 2  # the dataset is only parsed
     assert len(problems) == 1 and problems[0].startswith(
         "docs/x.md:5: `v2i validate scenarios/no_such_scenario.toml` exited 2"), problems
-
-
-def test_lone_runs_are_paired_and_everything_else_keeps_its_order(tmp_path):
-    root = planted_clone(tmp_path, "# X\n\n```sh\nv2i run a.toml\nv2i run b.toml   # a comment\nv2i run c.toml\n"
-                                   "v2i run d.toml > log\nv2i run e.toml --out x\nv2i run f.toml\nv2i run g.toml\n"
-                                   "v2i validate h.toml\nv2i run i.toml && v2i run j.toml\n```\n")
-    names = [[c.text.split()[2] for c in batch] for batch in batches(all_commands(root))]
-    assert names == [["a.toml", "b.toml"], ["c.toml"], ["d.toml"], ["e.toml"], ["f.toml", "g.toml"], ["h.toml"],
-                     ["i.toml"]]
 
 
 def test_a_link_to_nothing_is_named_by_page_and_line(tmp_path):
