@@ -74,8 +74,6 @@ def read_section(value: Any, context) -> PkiSpec | None:
 
 def ensure(spec: PkiSpec, now: datetime | None = None) -> dict[str, Any]:
     """Make what is missing in spec.dir (the CA, station credentials); returns what was made and kept."""
-    from bridges.security.certificates import ScenarioCA, load_credentials, time32
-
     now = now or datetime.now(timezone.utc)
     spec.dir.mkdir(parents=True, exist_ok=True)
     with FileLock(spec.dir / ".pki.lock"):
