@@ -312,8 +312,10 @@ class RsuApp:
                 continue  # no time mapping from the master yet
             # a stage's wall seconds are charged as rtf simulated seconds, and the rtf comes with the mapping
             # (the join does not carry it): without it a run at RTF 0.3 stamped encode and sign 3.3x too long,
-            # so a BSM's send stamp ran ahead of the run clock and its air stage read up to -2 ms
-            self.latency.rtf = self.part.mapping.rtf
+            # so a BSM's send stamp ran ahead of the run clock and its air stage read up to -2 ms. It is read
+            # as each stage ends: a first MAP encode of 0.6 s charged at the rate the step began with, while
+            # the clock slewed at 0.1 after the master's first slip, was stamped 0.5 s ahead of the clock
+            self.latency.rate_source = lambda: self.part.mapping.rtf
             self.t_sim = now
             frames = self.ingest.newest_only(self.ingest.collect(float("inf"), wait=False)) if self.ingest else []
             statuses = [(a.status, a.wire_bytes) for a in self.link.collect()] if self.link is not None else []

@@ -9,8 +9,8 @@ which costs no simulated time here: the air adds the radio's own latency).
 * lockstep, ``fixed``: the configured value, whatever the computer did, so a
   run repeats bit for bit; a stage the scenario leaves out costs 0 (logged once).
 * lockstep, ``measured``: the wall-clock compute time of the stage.
-* realtime: the wall-clock compute time scaled by the real-time factor
-  (simulated time *is* the wall clock then).
+* realtime: the wall-clock compute time scaled by the run clock's rate when the
+  stage ends (the real-time factor; lower while the clock slews after a slip).
 * a hardware profile (``--hardware``, ``--inference-s``) replaces stage 1 in
   every mode by a fixed inference time per frame, so one run can ask "would
   this RSU computer be fast enough?" (the seed paper's CPU at 0.27 FPS, FPGA at
@@ -38,6 +38,10 @@ class LatencyModel:
         self.latencies = {k: float(v) for k, v in (latencies or {}).items()}
         self.inference_s = inference_s
         self.rtf = float(rtf) if rtf and rtf > 0 else 1.0
+        # realtime: where the run clock's current rate comes from (the master's mapping, which changes while
+        # the clock slews after a slip); read when a stage ends, so a stage that spans the change is charged
+        # at the rate the clock ran when it ended, not at the rate when the step began
+        self.rate_source = None
         self.missing: set[str] = set()
 
     def describe(self) -> dict:
@@ -66,4 +70,6 @@ class LatencyModel:
             return self.latencies[name]
         if self.policy == "measured":
             return max(0.0, compute_s)
+        if self.rate_source is not None:
+            self.rtf = float(self.rate_source())
         return max(0.0, compute_s) * self.rtf  # realtime: the wall clock, in simulated seconds

@@ -263,6 +263,60 @@ def test_pacer_slip_shifts_the_schedule():
     assert pacer.scheduled(1) == pytest.approx(0.035) and pacer.scheduled(2) == pytest.approx(0.045)
 
 
+class _MappingRecorder:
+    """The coordinator as the participants hook sees it in realtime: a clock and the mappings published."""
+
+    def __init__(self, clock):
+        self.clock, self.mappings = clock, []
+
+    def clock_ns(self):
+        return round(self.clock() * 1e9)
+
+    def publish_mapping(self, t_sim0, wall0_ns, rtf):
+        self.mappings.append((t_sim0, wall0_ns, rtf))
+
+    def announce(self, k, t, step):
+        pass
+
+    def check(self):
+        pass
+
+
+def test_a_slipping_loop_slews_the_run_clock_and_never_puts_it_back():
+    """Under `slip` an overrun moves the schedule back by its length; the run clock the apps follow (and the
+    master stamps with) slows down to meet it instead of stepping back: a 0.6 s stall once put it back further
+    than a receiver's 1609.2 replay memory reaches, and the receiver refused the next BSM."""
+    from types import SimpleNamespace
+    from master.links.participants import ParticipantBridge
+
+    pacer, clock = fake_pacer("slip")
+    hook = ParticipantBridge(SimpleNamespace(participants={}, bridge=SimpleNamespace(prefix="t")), "realtime", 1.0, "run")
+    hook.coordinator, hook._pacer, hook._step = _MappingRecorder(clock), pacer, 0.01
+    readings, k = [], 0
+    for stall_at, stall in ((5, 0.6), (40, 0.03), (41, 0.03), (42, 0.03)):
+        while k <= stall_at:
+            clock.now = max(clock.now, pacer.scheduled(k))
+            hook.before_step(k, k * 0.01)
+            readings.append((clock.now, hook.clock_time()))
+            clock.now += 0.002 + (stall if k == stall_at else 0.0)  # the step's work
+            readings.append((clock.now, hook.clock_time()))
+            pacer.finished(k, k * 0.01)
+            k += 1
+    for _ in range(60):  # on time again
+        clock.now = max(clock.now, pacer.scheduled(k))
+        hook.before_step(k, k * 0.01)
+        readings.append((clock.now, hook.clock_time()))
+        clock.now += 0.002
+        pacer.finished(k, k * 0.01)
+        k += 1
+    assert pacer.misses >= 4
+    for (wall_a, a), (wall_b, b) in zip(readings, readings[1:]):
+        assert b > a if wall_b - wall_a > 1e-6 else b >= a, "the run clock went back or stood still"
+    assert hook._mapping is hook._schedule  # it met the schedule again
+    assert readings[-1][1] == pytest.approx((k - 1) * 0.01, abs=1e-6)
+    assert any(rtf < 1.0 for _, _, rtf in hook.coordinator.mappings)  # by slewing
+
+
 def test_pacer_skip_drops_whole_slots():
     pacer, clock = fake_pacer("skip")
     clock.now = 0.035  # 25 ms late for slot 1: slots at 0.01, 0.02, 0.03 missed -> next on-phase is 0.04

@@ -231,6 +231,18 @@ def test_realtime_a_late_loop_sends_one_late_bsm_per_track_not_a_burst():
     assert late[0][1].sec_mark_ms == sec_mark_ms(0.65, EPOCH)  # sent now, describing now
 
 
+def test_realtime_stages_are_charged_at_the_clocks_rate_when_they_end():
+    """The run clock slews (runs slower) after the master slips; a stage that spans the change is charged at
+    the rate read when it ends, so its stamp does not run ahead of the clock the next step reads."""
+    latency = LatencyModel("realtime", "realtime", {}, None)
+    assert latency.stage(ENCODE, 0.6) == pytest.approx(0.6)
+    rate = [1.0]
+    latency.rate_source = lambda: rate[0]
+    rate[0] = 0.1  # the mapping changed while the stage ran
+    assert latency.stage(ENCODE, 0.6) == pytest.approx(0.06)
+    assert latency.describe()["rtf"] == pytest.approx(0.1)
+
+
 def test_tracks_that_age_out_stop_being_broadcast():
     gone = Vehicle(1.75, -45.0, math.pi / 2, 8.333, until=2.0)
     core, _, _ = make_core(vehicles=[gone], max_missed=5)

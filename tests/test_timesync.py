@@ -9,7 +9,8 @@ import time
 import pytest
 
 from bridges.timesync import messages as m
-from bridges.timesync.clock import OffsetSample, TimeMapping, best_sample, offset_sample
+from bridges.timesync.clock import MIN_SLEW_RATE, SLEW_HORIZON_S, OffsetSample, TimeMapping, best_sample, \
+    offset_sample, slewed
 from bridges.timesync.coordinator import Coordinator, Expected
 from bridges.timesync.errors import (JoinTimeout, MasterLost, ParticipantLost, ParticipantTimeout, ProtocolError,
                                      Refused, TimeSyncError)
@@ -136,6 +137,49 @@ def test_time_mapping_round_trips():
     mp = TimeMapping(t_sim0=2.0, wall0_ns=1_000_000_000, rtf=0.5)
     assert mp.sim_time(3_000_000_000) == pytest.approx(3.0)
     assert mp.master_ns(3.0) == 3_000_000_000
+
+
+def test_a_schedule_ahead_is_stepped_to():
+    now = 5_000_000_000
+    ahead = TimeMapping(3.2, now, 1.0)
+    assert slewed(TimeMapping(3.0, now, 1.0), ahead, now) is ahead
+    assert slewed(None, ahead, now) is ahead
+
+
+@pytest.mark.parametrize("back_s", [0.01, 0.1, 0.5, 3.0])
+def test_a_schedule_that_moved_back_is_slewed_to_and_met(back_s):
+    """A loop that slipped moves its schedule back by the overrun; the run clock slows instead of stepping
+    (a receiver date-checks signed messages on it), and meets the schedule within the horizon when that keeps
+    it above the minimum rate."""
+    now, rtf = 7_000_000_000, 1.0
+    current = TimeMapping(4.0, now - 1_000_000_000, rtf)  # 5.0 s now
+    schedule = TimeMapping(5.0 - back_s, now, rtf)
+    s = slewed(current, schedule, now)
+    assert s.sim_time(now) == pytest.approx(current.sim_time(now))  # continuous: no step
+    assert MIN_SLEW_RATE * rtf <= s.rtf < rtf  # slower, never standing still
+    meet_s = back_s / (rtf - s.rtf)
+    assert meet_s == pytest.approx(max(SLEW_HORIZON_S, back_s / (rtf * (1 - MIN_SLEW_RATE))))
+    met = now + round(meet_s * 1e9)
+    assert s.sim_time(met) == pytest.approx(schedule.sim_time(met))
+
+
+def test_the_participants_realtime_clock_never_goes_back(buses):
+    """A new mapping that arrives a bus delay late (or a refreshed offset) could put the clock back a little:
+    read through the participant, it holds instead."""
+    c = coordinator(buses("master"), "rt", mode="realtime")
+    wall = [time.time_ns()]
+    p = Participant(buses("rt"), "rt", "x", auto_offset=False, clock_ns=lambda: wall[0])
+    p.join(5)
+    now = wall[0]
+    p.mapping = TimeMapping(10.0, now, 1.0)
+    assert p.sim_time_now() == 10.0
+    p.mapping = TimeMapping(9.0, now, 1.0)  # a second back
+    wall[0] += 500_000_000
+    assert p.sim_time_now() == 10.0  # held: the new mapping reads 9.5
+    wall[0] += 600_000_000
+    assert p.sim_time_now() == pytest.approx(10.1)  # and runs again once it has passed
+    c.close()
+    p.close()
 
 
 # -- memory bus ------------------------------------------------------------------------------------

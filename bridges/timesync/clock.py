@@ -11,7 +11,11 @@ several exchanges the one with the smallest rtt is kept (NTP's clock filter).
 
 Mapping: in realtime runs the master publishes (t_sim0, wall0_ns, rtf): at
 master wall time wall0_ns the simulation was at t_sim0 and advances rtf
-simulated seconds per wall second.
+simulated seconds per wall second. The run clock this gives never runs
+backwards: when the master's schedule moves back (a loop that slipped), the
+mapping it publishes slews (`slewed`) instead of stepping, as NTP's adjtime
+does, because receivers date-check signed messages against it (IEEE 1609.2's
+time window and replay memory) and stages are stamped on it in order.
 """
 from __future__ import annotations
 
@@ -48,3 +52,26 @@ class TimeMapping:
 
     def master_ns(self, t_sim: float) -> int:
         return self.wall0_ns + round((t_sim - self.t_sim0) / self.rtf * 1e9)
+
+
+SLEW_HORIZON_S = 0.2  # a run clock ahead of its schedule meets it again within this many wall seconds...
+MIN_SLEW_RATE = 0.1  # ...unless that would take it below this share of its rate (it never stands still)
+
+
+def slewed(current: TimeMapping | None, target: TimeMapping, now_ns: int, *,
+           horizon_s: float = SLEW_HORIZON_S, min_rate: float = MIN_SLEW_RATE) -> TimeMapping:
+    """The mapping to follow from `now_ns` when the schedule says `target`.
+
+    `target` itself when it does not put the clock back (a step forward is
+    only time that passed unseen); otherwise a mapping that continues from
+    `current`'s time now at a lower rate, chosen to meet `target` within
+    `horizon_s` but never below `min_rate` x its rate, so stamps keep
+    increasing. Once the two meet, the caller switches to `target`.
+    """
+    if current is None:
+        return target
+    ahead = current.sim_time(now_ns) - target.sim_time(now_ns)
+    if ahead <= 0.0:
+        return target
+    rate = max(min_rate * target.rtf, target.rtf - ahead / horizon_s)
+    return TimeMapping(current.sim_time(now_ns), now_ns, rate)

@@ -71,6 +71,7 @@ class Participant:
         self.welcome: m.Welcome | None = None
         self.ended: m.End | None = None
         self.mapping: TimeMapping | None = None
+        self._last_sim_time = float("-inf")  # realtime: sim_time_now() never returns less than it did
         self.offset: OffsetSample | None = None
         self.tick: m.Tick | None = None  # the tick being worked on (last delivered)
         self.errors: Counter = Counter()  # bad payloads, by reason; never raised from a callback
@@ -233,7 +234,11 @@ class Participant:
         if self.mode == "realtime":
             if self.mapping is None:
                 raise TimeSyncError(f"participant '{self.name}': no time mapping from the master yet")
-            return self.mapping.sim_time(self.master_time_ns())
+            # the master's mapping only slews forward, but a new one arrives a bus delay late and the
+            # offset estimate is refreshed: read through both, the clock still never goes back
+            now = max(self._last_sim_time, self.mapping.sim_time(self.master_time_ns()))
+            self._last_sim_time = now
+            return now
         if self.tick is None:
             raise TimeSyncError(f"participant '{self.name}': no tick yet")
         return self.tick.t

@@ -39,7 +39,9 @@ V2I_SERIAL_<NAME> (e.g. V2I_SERIAL_TLC=socket://127.0.0.1:40123); its output goe
 folder. In lockstep the master ticks at each sync point before stepping and
 waits for the acks; in realtime it publishes ticks and the sim/wall mapping and
 never waits. The mapping (the run clock) is the pacer's schedule: it moves only
-when the schedule does (the `slip` and `skip` overrun policies), so the apps'
+when the schedule does (the `slip` and `skip` overrun policies), and slews to a
+schedule that moved back rather than stepping (bridges.timesync.clock.slewed:
+signed messages are date-checked on it), so the apps'
 stamps and the master's (RunContext.stamp_time) are on one clock; a loop that
 cannot keep up falls behind the run clock and the run says so (deadline misses).
 """
@@ -59,7 +61,7 @@ from typing import Any, Callable
 
 from bridges.geo import GeoOrigin
 from bridges.timesync import lifeline
-from bridges.timesync.clock import TimeMapping
+from bridges.timesync.clock import TimeMapping, slewed
 from bridges.timesync.coordinator import LATENCY_POLICIES, Coordinator, Expected
 from bridges.timesync.errors import TimeSyncError
 from bridges.timesync.messages import NAME
@@ -319,6 +321,7 @@ class ParticipantBridge(Hook):
         self._mapping: TimeMapping | None = None
         self._pacer = None  # realtime: the loop's Pacer, whose schedule the mapping follows
         self._shift = 0.0
+        self._schedule: TimeMapping | None = None  # realtime: the pacer's schedule, which the mapping slews to
         self._map_sent = 0
         self._last_check = 0.0
 
@@ -363,10 +366,17 @@ class ParticipantBridge(Hook):
             # the run clock is the pacer's schedule: it moves only when the schedule does (the slip and
             # skip overrun policies), never because a step is late, so the apps' clock and the master's
             # stamps never jump back while the loop lags (lateness is reported as deadline misses)
+            # a schedule that moved back (slip) is slewed to, never stepped to: the run clock only runs forward
+            follow = m
             if m is None or pacer.shift != self._shift:
                 self._shift = pacer.shift
                 late_ns = round((pacer.clock() - pacer.scheduled(k)) * 1e9)
-                self._mapping = m = TimeMapping(t, now - late_ns, self.rtf)
+                self._schedule = TimeMapping(t, now - late_ns, self.rtf)
+                follow = slewed(m, self._schedule, now)
+            elif m is not self._schedule and m.sim_time(now) <= self._schedule.sim_time(now):
+                follow = self._schedule  # the slewed clock has met the schedule
+            if follow is not m:
+                self._mapping = m = follow
                 self._map_sent = 0
         elif m is None or abs(now - m.master_ns(t)) > REANCHOR_S * 1e9:
             self._mapping = m = TimeMapping(t, now, self.rtf)
