@@ -188,17 +188,85 @@ def run_problems(block: list[Command], root: Path, workdir: Path, fmu_dir: Path)
         (workdir / "examples").symlink_to(root / "examples", target_is_directory=True)
     env = {**os.environ, "PATH": f"{v2i.parent}{os.pathsep}{os.environ.get('PATH', '')}",
            "V2I_FMU_DIR": str(fmu_dir)}
-    ran, problems = 0, []
+    cheap = [c for c in block if all_cheap(c)]
+    problems = []
+    for batch in batches(cheap, root, fmu_dir):
+        procs = [(c, subprocess.Popen(["bash", "-o", "pipefail", "-c", c.text], cwd=workdir, env=env,
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)) for c in batch]
+        for command, proc in procs:
+            try:
+                out, err = proc.communicate(timeout=600)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                out, err = proc.communicate()
+            if proc.returncode != 0:
+                problems.append(f"{command.where}: `{command.text}` exited {proc.returncode}\n"
+                                f"stdout: {out[-2000:]}\nstderr: {err[-2000:]}")
+    return len(cheap), problems
+
+
+def lone_run(command: Command) -> list[str] | None:
+    """The argv of a line that is one `v2i run` and nothing else (no pipe, redirection, second command or
+    --out): it writes only a run folder of its own; None for any other line."""
+    lexer = shlex.shlex(command.text, posix=True, punctuation_chars=True)
+    lexer.whitespace_split = True
+    lexer.commenters = "#"
+    tokens = list(lexer)
+    argvs = invocations(command.text)
+    if len(argvs) != 1 or argvs[0][:1] != ["run"] or "--out" in argvs[0]:
+        return None
+    return None if any(t in CONTROL or t in REDIRECT for t in tokens) else argvs[0]
+
+
+def fixed_ports(argv: list[str], root: Path, fmu_dir: Path) -> set[str] | None:
+    """The endpoints a `v2i run` binds as its scenario fixes them (bus listen addresses, CAN and serial
+    ports); None when the scenario does not load (then the line runs alone and says why)."""
+    from master.scenario.loader import load_scenario
+
+    args = parser().parse_args(argv)
+    old = os.environ.get("V2I_FMU_DIR")
+    os.environ["V2I_FMU_DIR"] = str(fmu_dir)
+    try:
+        resolved = load_scenario(root / args.file, args.set).resolved()
+    except Exception:
+        return None
+    finally:
+        if old is None:
+            os.environ.pop("V2I_FMU_DIR", None)
+        else:
+            os.environ["V2I_FMU_DIR"] = old
+
+    def walk(node, key=""):
+        if isinstance(node, dict):
+            for k, v in node.items():
+                yield from walk(v, k)
+        elif isinstance(node, list):
+            for v in node:
+                yield from walk(v, key)
+        elif key in ("port", "listen"):
+            yield str(node)
+
+    return set(walk(resolved))
+
+
+def batches(block: list[Command], root: Path, fmu_dir: Path, width: int = 2) -> list[list[Command]]:
+    """The block's commands in page order, consecutive lone runs paired (`width` at a time) when their
+    scenarios bind no port in common: a lockstep run keeps about one core busy, so two side by side take
+    the time of one on this 2-core machine. Any other line runs alone, after what comes before it, since it
+    may read what that wrote; runs that share a port run one after the other, as a user would."""
+    out: list[list[Command]] = []
+    taken: list[set[str]] = []
     for command in block:
-        if not all_cheap(command):
-            continue
-        result = subprocess.run(["bash", "-o", "pipefail", "-c", command.text], cwd=workdir, env=env,
-                                capture_output=True, text=True, timeout=600)
-        ran += 1
-        if result.returncode != 0:
-            problems.append(f"{command.where}: `{command.text}` exited {result.returncode}\n"
-                            f"stdout: {result.stdout[-2000:]}\nstderr: {result.stderr[-2000:]}")
-    return ran, problems
+        argv = lone_run(command)
+        ports = fixed_ports(argv, root, fmu_dir) if argv is not None else None
+        if (ports is not None and out and len(out[-1]) < width and taken[-1] is not None
+                and not ports & taken[-1]):
+            out[-1].append(command)
+            taken[-1] |= ports
+        else:
+            out.append([command])
+            taken.append(ports)
+    return out
 
 
 def slug(heading: str) -> str:
@@ -336,6 +404,20 @@ def test_a_command_that_fails_is_named_by_page_and_line(tmp_path, fmu_dir):
     assert ran == 2  # the dataset is only parsed
     assert len(problems) == 1 and problems[0].startswith(
         "docs/x.md:5: `v2i validate scenarios/no_such_scenario.toml` exited 2"), problems
+
+
+def test_lone_runs_on_ports_of_their_own_are_paired_and_everything_else_keeps_its_order(tmp_path, fmu_dir):
+    """The shipped case study and its no-CPS variant bind different ports and pair; a run sharing a port with
+    the one before it (the same scenario twice) waits for it, as does any line that is not a lone run."""
+    cps, no_cps = "scenarios/ima_case_study.toml", "scenarios/ima_no_cps.toml"
+    root = planted_clone(tmp_path, f"# X\n\n```sh\nv2i run {cps}\nv2i run {no_cps}   # a comment\n"
+                                   f"v2i run {cps}\nv2i run {cps} --set time.stop=2\nv2i run {no_cps} > log\n"
+                                   f"v2i run {cps} --out x\nv2i run {no_cps}\nv2i validate {cps}\n"
+                                   f"v2i run {cps} && v2i run {no_cps}\nv2i run scenarios/missing.toml\n"
+                                   f"v2i run {cps}\n```\n")
+    (root / "scenarios").symlink_to(ROOT / "scenarios", target_is_directory=True)
+    lines = [[int(c.where.rsplit(":", 1)[1]) - 3 for c in batch] for batch in batches(all_commands(root), root, fmu_dir)]
+    assert lines == [[1, 2], [3], [4], [5], [6], [7], [8], [9], [10], [11]], lines
 
 
 def test_a_link_to_nothing_is_named_by_page_and_line(tmp_path):

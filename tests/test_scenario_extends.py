@@ -109,9 +109,16 @@ def test_the_shipped_case_study_and_its_no_cps_variant_differ_only_in_the_rsu_ap
     cps = load_scenario(SCENARIOS / "ima_case_study.toml").resolved()
     no_cps = load_scenario(SCENARIOS / "ima_no_cps.toml").resolved()
     assert set(cps["participants"]) == {"rsu", "cav"} and set(no_cps["participants"]) == {"cav"}
-    for table in ("time", "fmus", "world", "can", "v2x", "bridge", "record", "connections"):
+    for table in ("time", "fmus", "world", "v2x", "record", "connections"):
         assert cps[table] == no_cps[table], table
-    assert cps["participants"]["cav"] == no_cps["participants"]["cav"]
+    # ports of its own (so the README's two runs can go side by side), nothing else of the bus or CAN differs
+    assert cps["bridge"]["listen"] != no_cps["bridge"]["listen"] and cps["can"]["port"] != no_cps["can"]["port"]
+    for table, port in (("bridge", "listen"), ("can", "port")):
+        assert {k: v for k, v in cps[table].items() if k != port} == \
+            {k: v for k, v in no_cps[table].items() if k != port}, table
+    cav = dict(no_cps["participants"]["cav"], command=[
+        str(cps["can"]["port"]) if a == str(no_cps["can"]["port"]) else a for a in no_cps["participants"]["cav"]["command"]])
+    assert cps["participants"]["cav"] == cav  # the same app, given its scenario's CAN port
     world = load_scenario(SCENARIOS / "ima_world.toml").resolved()
     assert cps["world"]["cameras"] == world["world"]["cameras"]  # the case study's world is ima_world's
     assert cps["fmus"]["ev"]["parameters"]["v0"] == pytest.approx(16.667)  # 60 km/h
