@@ -33,9 +33,9 @@ def study(tmp_path_factory, fmu_dir):
     return root
 
 
-def run(study: Path, base: str, out: Path, baud: int | None = None) -> dict:
+def run(study: Path, base: str, out: Path, baud: int | None = None, stop: float | None = None) -> dict:
     variant = study / f"run-{out.name}.toml"
-    extra = ""
+    extra = f"[time]\nstop = {stop}\n" if stop else ""
     if baud:
         extra = f"""
 [time]
@@ -62,8 +62,28 @@ listen = ["tcp/127.0.0.1:{free_port()}"]
 def runs(study, tmp_path_factory):
     out = tmp_path_factory.mktemp("evsp-runs")
     jobs = {"evsp": ("evsp.toml", out / "evsp"), "none": ("evsp_no_preemption.toml", out / "none"),
-            "1200": ("evsp.toml", out / "evsp-1200", 1200)}
+            "1200": ("evsp.toml", out / "evsp-1200", 1200), "again": ("evsp.toml", out / "evsp-again", None, 14.0)}
     return run_pairwise(lambda job: run(study, *job), jobs)
+
+
+def serial_exchange(run_dir: Path) -> list[tuple]:
+    """What crossed the RS-232 model and when, in simulated time (the log's wall-clock fields left out)."""
+    return [(e["t"], e["event"], e.get("hex"), e.get("wire_end"))
+            for e in map(json.loads, (run_dir / "serial-tlc.jsonl").read_text().splitlines())]
+
+
+def test_lockstep_under_the_fixed_policy_repeats_bit_for_bit(runs):
+    """Issue 39: evsp.toml run again (side by side with other runs, so at another wall-clock pace) and
+    stopped at 14 s, past the request and the ev's green, gives the first run's time series byte for byte
+    up to there, the same bytes over the serial link at the same simulated times, and the same request."""
+    first, again = runs["evsp"], runs["again"]
+    assert len(again["series"]) > 1000 and first["series"].startswith(again["series"])
+    exchange = [e for e in serial_exchange(again["dir"]) if e[0] < 13.9]  # the end of a run closes the port
+    assert len(exchange) > 1000  # polled back to back all run long
+    assert [e for e in serial_exchange(first["dir"]) if e[0] < 13.9] == exchange
+    p, q = first["metrics"]["preemption"], again["metrics"]["preemption"]
+    assert q["granted"] and {k: q[k] for k in ("srm_to_green_ms", "stages_ms", "rejected")} == \
+        {k: p[k] for k in ("srm_to_green_ms", "stages_ms", "rejected")}
 
 
 def test_the_ev_gets_its_green_before_it_reaches_the_stop_line(runs):
