@@ -259,6 +259,48 @@ def test_realtime_run_records_the_participant_clock_offset(write_scenario, tmp_p
     assert part["ticks"] == 50 and part["members"]["box"]["acks"] == 0  # realtime never waits for acks
 
 
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_a_box_that_joins_a_running_run_follows_it_to_the_end(write_scenario, tmp_path, mode):
+    """An optional box the user starts (no command) joining a run that is already ticking, as a process on
+    zenoh: in lockstep its first tick was in progress when it joined, so the next one came before it acked
+    (this killed it: "ack of tick 25, but the current tick is 26"); it now follows to the end and the master
+    waits for it from its second tick on. In realtime it simply picks up the ticks as they come."""
+    import subprocess
+    import sys
+
+    # ticks of 0.3 s (longer than the master's 0.25 s resend): the tick in progress is resent after the box's
+    # join, so the box gets a tick the master is not waiting for, and works on it when the next one comes
+    tables = bus_tables("zenoh") + echo("ok", "--delay", "0.3") + '[participants.box]\nrole = "echo"\n' \
+        'required = false\n'
+    path = scenario(write_scenario, tables, stop=0.3 if mode == "lockstep" else 4.0, mode=mode)
+    sc = load_scenario(path)
+    bridge = tomllib.loads(path.read_text())["bridge"]
+    out = {}
+    sim = threading.Thread(target=lambda: out.setdefault(
+        "result", CoSimulation(sc, tmp_path / "run", quiet=True).run()), daemon=True)
+    sim.start()
+    deadline = time.monotonic() + 30
+    while not (tmp_path / "run" / "participant-ok.log").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(1.0)  # the run is ticking
+    assert sim.is_alive(), "the run ended before the box could join: make it longer"
+    box = subprocess.run([sys.executable, "-m", "bridges.timesync.echo_participant", "--name", "box",
+                          "--bus", "zenoh", "--prefix", bridge["prefix"], "--connect", bridge["listen"][0],
+                          "--delay", "0.3"], capture_output=True, text=True, timeout=120)
+    sim.join(120)
+    result = out["result"]
+    assert result.status == "completed", result.error
+    assert box.returncode == 0, box.stderr
+    said = json.loads(box.stdout.strip().splitlines()[-1])
+    assert said["end"] == "completed" and said["ticks"] > 5 and said["errors"] == {}, said
+    member = result.metadata["participants"]["members"]["box"]
+    assert member["joined"] and member["timeouts"] == 0
+    if mode == "lockstep":  # waited for from its second tick: every tick but the first acked and counted
+        assert member["acks"] >= said["ticks"] - 1 and member["acks"] > 5
+    else:
+        assert member["acks"] == 0  # realtime never waits
+
+
 def test_a_bus_that_cannot_open_fails_the_run_with_the_reason(write_scenario, tmp_path):
     path = scenario(write_scenario, '[bridge]\ntransport = "memory"\noptions = { bogus = 1 }\n[participants.a]\n')
     result = CoSimulation(load_scenario(path), tmp_path / "run", quiet=True).run()

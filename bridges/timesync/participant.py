@@ -76,6 +76,7 @@ class Participant:
         self.tick: m.Tick | None = None  # the tick being worked on (last delivered)
         self.errors: Counter = Counter()  # bad payloads, by reason; never raised from a callback
         self.skipped_ticks = 0  # realtime: ticks passed over because the app was busy
+        self.stale_acks = 0  # lockstep: acks not sent, a newer tick having come (a late join's first tick)
         self._lock = threading.Lock()
         self._ticks: queue.Queue = queue.Queue()
         self._welcomes: queue.Queue = queue.Queue()
@@ -185,6 +186,13 @@ class Participant:
     def ack(self, tick: m.Tick, processing_s: float | None = None) -> None:
         """Done with everything up to `tick` (lockstep); a no-op in realtime runs."""
         if self.mode != "lockstep" or self.ended is not None:
+            return
+        if self.tick is not None and tick.k == self.tick.k < self._delivered_k:
+            # a newer tick came while this one was worked on: the master did not wait for this ack (the tick
+            # was in progress when we joined), so there is nobody to send it to. A box that joins a running
+            # run meets this with its first tick; the next one is waited for.
+            with self._lock:
+                self.stale_acks += 1
             return
         if tick.k != self._delivered_k:
             raise ValueError(f"participant '{self.name}': ack of tick {tick.k}, but the current tick is "
