@@ -54,6 +54,37 @@ class Transmission:
     compute_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage
 
 
+@dataclass(frozen=True)
+class Signed:
+    """A message encoded and signed: the 1609.2 frame, the simulated times its encode and sign stages
+    ended, and the wall seconds each took."""
+
+    frame: bytes
+    t_encode: float
+    t_sign: float
+    encode_s: float
+    sign_s: float
+
+    def marks(self) -> dict[str, int]:
+        """The trace stamps of its stages (it is sent as it is signed)."""
+        return {ENCODE: stamp_ns(self.t_encode), SIGN: stamp_ns(self.t_sign), SEND: stamp_ns(self.t_sign)}
+
+    def compute_s(self) -> dict[str, float]:
+        return {"encode": self.encode_s, "sign": self.sign_s}
+
+
+def sign_encoded(payload: bytes, c0: float, start: float, psid: int, envelope, latency, epoch_unix_s: float
+                 ) -> Signed:
+    """Sign `payload`, whose building and encoding began at perf_counter `c0`: the encode stage is charged
+    from `start` (per the latency policy), the signature carries the time it ended as its generation time,
+    and the sign stage follows it. Every message the RSU sends goes through here, so each is stamped alike."""
+    c1 = time.perf_counter()
+    t_encode = start + latency.stage(ENCODE_STAGE, c1 - c0)
+    frame = envelope.wrap(payload, psid, time64_us(unix_time(t_encode, epoch_unix_s)))
+    c2 = time.perf_counter()
+    return Signed(frame, t_encode, t_encode + latency.stage(SIGN_STAGE, c2 - c1), c1 - c0, c2 - c1)
+
+
 def sec_mark_ms(t_sim: float, epoch_unix_s: float) -> int:
     """Milliseconds within the UTC minute of simulation time t_sim (J2735 DSecond; no leap seconds here).
 
@@ -113,22 +144,18 @@ class BsmStage:
             start = cursor if sequential else t
             c0 = time.perf_counter()
             bsm = self.bsm(s, t)
-            payload = bsm.encode()
-            c1 = time.perf_counter()
-            t_encode = start + self.latency.stage(ENCODE_STAGE, c1 - c0)
-            frame = self.envelope.wrap(payload, PSID_SURROGATE_BSM, time64_us(unix_time(t_encode, self.epoch)))
-            c2 = time.perf_counter()
-            t_sign = t_encode + self.latency.stage(SIGN_STAGE, c2 - c1)
-            cursor = t_sign
+            signed = sign_encoded(bsm.encode(), c0, start, PSID_SURROGATE_BSM, self.envelope, self.latency,
+                                  self.epoch)
+            cursor = signed.t_sign
             st = stamps.get(s.id)
-            marks = {ENCODE: stamp_ns(t_encode), SIGN: stamp_ns(t_sign), SEND: stamp_ns(t_sign)}
+            marks = signed.marks()
             if st is not None:
                 marks = {FRAME: stamp_ns(st.frame), DETECT_START: stamp_ns(st.detect_start),
                          DETECT_END: stamp_ns(st.detect_end), **marks}
-            out.append(Transmission(self.key, frame, t_sign, marks, "bsm", bsm.temporary_id.hex(),
-                                    {"encode": c1 - c0, "sign": c2 - c1}))
-            self.encode_s.append(c1 - c0)
-            self.sign_s.append(c2 - c1)
+            out.append(Transmission(self.key, signed.frame, signed.t_sign, marks, "bsm", bsm.temporary_id.hex(),
+                                    signed.compute_s()))
+            self.encode_s.append(signed.encode_s)
+            self.sign_s.append(signed.sign_s)
             self.sent += 1
             self.sent_by_track[s.id] = self.sent_by_track.get(s.id, 0) + 1
         return out

@@ -14,11 +14,9 @@ from collections import Counter
 from bridges.j2735 import J2735Error, default_codec
 from bridges.j2735.signal_request import SRM_ID, Srm
 from bridges.security import PSID_SRM, PSID_SSM, VerificationError, Verifier, time64_us
-from bridges.v2x import ENCODE, SEND, SIGN, stamp_ns, tx_key, unix_time
-from rsu_app.bsm_stage import Transmission, minute_of_year
+from bridges.v2x import tx_key, unix_time
+from rsu_app.bsm_stage import Transmission, minute_of_year, sign_encoded
 from rsu_app.priority import PriorityCore
-from rsu_app.timing import ENCODE as ENCODE_STAGE
-from rsu_app.timing import SIGN as SIGN_STAGE
 
 
 class PriorityStage:
@@ -78,13 +76,7 @@ class PriorityStage:
         ssm = self.core.ssm(second=round(unix % 60.0, 3), moy=minute_of_year(unix))
         if ssm is None:
             return None
-        payload = ssm.encode()
-        c1 = time.perf_counter()
-        t_encode = t + self.latency.stage(ENCODE_STAGE, c1 - c0)
-        frame = self.envelope.wrap(payload, PSID_SSM, time64_us(unix_time(t_encode, self.epoch)))
-        c2 = time.perf_counter()
-        t_sign = t_encode + self.latency.stage(SIGN_STAGE, c2 - c1)
+        signed = sign_encoded(ssm.encode(), c0, t, PSID_SSM, self.envelope, self.latency, self.epoch)
         self.sent += 1
-        return Transmission(self.key, frame, t_sign, {ENCODE: stamp_ns(t_encode), SIGN: stamp_ns(t_sign),
-                                                      SEND: stamp_ns(t_sign)}, "ssm",
-                            compute_s={"encode": c1 - c0, "sign": c2 - c1})
+        return Transmission(self.key, signed.frame, signed.t_sign, signed.marks(), "ssm",
+                            compute_s=signed.compute_s())

@@ -44,14 +44,11 @@ import numpy as np
 from bridges.geo import GeoOrigin
 from bridges.j2735.sdsm import (HEADING_CONFIDENCE, MAX_OBJECTS, MEASUREMENT_TIME, POSITION_CONFIDENCE,
                                 SPEED_CONFIDENCE, DateTime, DetectedObject, Sdsm, VehicleDetails)
-from bridges.security import time64_us
-from bridges.v2x import DETECT_END, DETECT_START, ENCODE, FRAME, SEND, SIGN, stamp_ns, tx_key, unix_time
-from rsu_app.bsm_stage import Transmission
+from bridges.v2x import DETECT_END, DETECT_START, FRAME, stamp_ns, tx_key, unix_time
+from rsu_app.bsm_stage import Transmission, sign_encoded
 from rsu_app.perception.geo import VEHICLE_SIZE
 from rsu_app.perception.tracker import TrackState
 from rsu_app.perception_stage import TrackStamps, covariance_ellipse
-from rsu_app.timing import ENCODE as ENCODE_STAGE
-from rsu_app.timing import SIGN as SIGN_STAGE
 
 OBJECT_TYPES = {"car": "vehicle", "emergency": "vehicle", "truck": "vehicle", "bus": "vehicle",
                 "person": "vru", "pedestrian": "vru", "bicycle": "vru", "cyclist": "vru"}
@@ -167,21 +164,16 @@ class SdsmStage:
         start = t if start is None else start
         c0 = time.perf_counter()
         message = self.sdsm(states, t, stamps)
-        payload = message.encode()
-        c1 = time.perf_counter()
-        t_encode = start + self.latency.stage(ENCODE_STAGE, c1 - c0)
-        frame = self.envelope.wrap(payload, self.psid, time64_us(unix_time(t_encode, self.epoch)))
-        c2 = time.perf_counter()
-        t_sign = t_encode + self.latency.stage(SIGN_STAGE, c2 - c1)
-        marks = {ENCODE: stamp_ns(t_encode), SIGN: stamp_ns(t_sign), SEND: stamp_ns(t_sign)}
+        signed = sign_encoded(message.encode(), c0, start, self.psid, self.envelope, self.latency, self.epoch)
+        marks = signed.marks()
         seen = [stamps[s.id] for s in states if s.id in stamps]
         if seen:
             oldest = min(seen, key=lambda st: st.frame)
             marks = {FRAME: stamp_ns(oldest.frame), DETECT_START: stamp_ns(oldest.detect_start),
                      DETECT_END: stamp_ns(oldest.detect_end), **marks}
-        self.encode_s.append(c1 - c0)
-        self.sign_s.append(c2 - c1)
+        self.encode_s.append(signed.encode_s)
+        self.sign_s.append(signed.sign_s)
         self.sent += 1
         self.objects_sent += len(message.objects)
-        return [Transmission(self.key, frame, t_sign, marks, "sdsm", self.source_id.hex(),
-                             {"encode": c1 - c0, "sign": c2 - c1})]
+        return [Transmission(self.key, signed.frame, signed.t_sign, marks, "sdsm", self.source_id.hex(),
+                             signed.compute_s())]

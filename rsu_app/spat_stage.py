@@ -25,12 +25,10 @@ from collections import deque
 
 from bridges import ab3418
 from bridges.j2735.spat import IntersectionSignals, Movement, Spat
-from bridges.security import PSID_SPAT_MAP, time64_us
-from bridges.v2x import ENCODE, SEND, SIGN, stamp_ns, tx_key, unix_time
-from rsu_app.bsm_stage import Transmission, minute_of_year
+from bridges.security import PSID_SPAT_MAP
+from bridges.v2x import tx_key, unix_time
+from rsu_app.bsm_stage import Transmission, minute_of_year, sign_encoded
 from rsu_app.intersection_map import map_message
-from rsu_app.timing import ENCODE as ENCODE_STAGE
-from rsu_app.timing import SIGN as SIGN_STAGE
 
 GREEN, YELLOW, RED, FLASH = ("protected-Movement-Allowed", "protected-clearance", "stop-And-Remain",
                              "stop-Then-Proceed")
@@ -121,18 +119,12 @@ class SpatStage:
         spat = Spat([IntersectionSignals(self.intersection_id, revision=self.revision, moy=moy,
                                          time_stamp_ms=int(unix * 1000 + 1e-6) % 60000, status=status_bits,
                                          movements=movements)], moy=moy)
-        payload = spat.encode()
-        c1 = time.perf_counter()
-        t_encode = t + self.latency.stage(ENCODE_STAGE, c1 - c0)
-        frame = self.envelope.wrap(payload, PSID_SPAT_MAP, time64_us(unix_time(t_encode, self.epoch)))
-        c2 = time.perf_counter()
-        t_sign = t_encode + self.latency.stage(SIGN_STAGE, c2 - c1)
+        signed = sign_encoded(spat.encode(), c0, t, PSID_SPAT_MAP, self.envelope, self.latency, self.epoch)
         self.sent += 1
-        self.encode_s.append(c1 - c0)
+        self.encode_s.append(signed.encode_s)
         self.history.append((self.t_rx, self.t_status, states))
-        return Transmission(self.key, frame, t_sign, {ENCODE: stamp_ns(t_encode), SIGN: stamp_ns(t_sign),
-                                                      SEND: stamp_ns(t_sign)}, "spat",
-                            compute_s={"encode": c1 - c0, "sign": c2 - c1})
+        return Transmission(self.key, signed.frame, signed.t_sign, signed.marks(), "spat",
+                            compute_s=signed.compute_s())
 
 
 class MapStage:
@@ -148,12 +140,7 @@ class MapStage:
         c0 = time.perf_counter()
         unix = unix_time(t, self.epoch)
         payload = map_message(self.geometry, self.revision, minute_of_year(unix)).encode()
-        c1 = time.perf_counter()
-        t_encode = t + self.latency.stage(ENCODE_STAGE, c1 - c0)
-        frame = self.envelope.wrap(payload, PSID_SPAT_MAP, time64_us(unix_time(t_encode, self.epoch)))
-        c2 = time.perf_counter()
-        t_sign = t_encode + self.latency.stage(SIGN_STAGE, c2 - c1)
+        signed = sign_encoded(payload, c0, t, PSID_SPAT_MAP, self.envelope, self.latency, self.epoch)
         self.sent += 1
-        return Transmission(self.key, frame, t_sign, {ENCODE: stamp_ns(t_encode), SIGN: stamp_ns(t_sign),
-                                                      SEND: stamp_ns(t_sign)}, "map",
-                            compute_s={"encode": c1 - c0, "sign": c2 - c1})
+        return Transmission(self.key, signed.frame, signed.t_sign, signed.marks(), "map",
+                            compute_s=signed.compute_s())
