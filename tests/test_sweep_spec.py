@@ -144,7 +144,7 @@ def test_every_problem_at_once_and_a_missing_base(tmp_path):
 
 
 @pytest.mark.parametrize("name, n", [("dse", 12), ("radio_loss", 21), ("nhtsa_variants", 40), ("ima_timing", 114),
-                                     ("evsp_baud", 6)])
+                                     ("evsp_baud", 6), ("evsp_variants", 9)])
 def test_the_shipped_sweeps_load_and_every_point_is_a_valid_scenario(fmu_dir, name, n):
     from master.sweep.runner import check_points
     from master.sweep.dse import check_dse
