@@ -36,6 +36,15 @@ class CameraFrame:
     R_wc: np.ndarray
     position: np.ndarray
 
+    @property
+    def sensor(self) -> str:
+        """The name an app's ingest files it under (a radar scan has one too)."""
+        return self.camera
+
+    @property
+    def seq(self) -> int:
+        return self.frame_id
+
 
 def encode_frame(frame, encoding: str = "raw", quality: int = 90) -> bytes:
     """`frame`: anything with camera, frame_id, t, rgb, P, K, R_wc, position (master.world.camera.Frame)."""

@@ -44,7 +44,7 @@ from bridges.timesync.exits import EXIT_CONFIG, EXIT_ERROR, EXIT_OK, SESSION_ERR
 from bridges.timesync.participant import Participant, bus_from_env
 from bridges.v2x import EPOCH, rx_key, trace_key, tx_key
 from rsu_app.bsm_stage import BsmStage
-from rsu_app.camera import CameraIngest
+from rsu_app.camera import CameraIngest, RadarIngest
 from rsu_app.config import ConfigError, Settings
 from rsu_app.controller_link import ControllerLink, serial_env
 from rsu_app.core import RsuCore
@@ -121,7 +121,7 @@ class RsuApp:
                                       settings.security.credential or self.station, psids,
                                       settings.security.certificate_interval_s)
         self.detector = make_rsu_detector(settings) if settings.camera.names else None
-        self.bus = self.part = self.ingest = self.link = self.core = None
+        self.bus = self.part = self.ingest = self.radar_ingest = self.link = self.core = None
         self.welcome = None
         self.t_sim = float("nan")
         self.ticks = 0
@@ -229,6 +229,8 @@ class RsuApp:
         try:
             if self.detector is not None:
                 self.ingest = CameraIngest(self.bus, s.camera.names, s.camera.rate_hz, s.camera.wait_s)
+                if s.radar.names:
+                    self.radar_ingest = RadarIngest(self.bus, s.radar.names, s.radar.rate_hz, s.radar.wait_s)
             if self.serial_url:
                 self.link = ControllerLink(self.serial_url, s.spat.controller, s.spat.baud, s.spat.poll,
                                            s.spat.answer_timeout_s)
@@ -278,7 +280,7 @@ class RsuApp:
         for tick in self.part.ticks():
             c0 = time.perf_counter()
             self.t_sim = tick.t
-            frames = self.ingest.collect(tick.t, wait=True) if self.ingest is not None else []
+            frames = self._samples(tick.t, wait=True)
             statuses = [(a.status, a.wire_bytes) for a in self.link.collect()] if self.link is not None else []
             acks = self.link.collect_preempt() if self.link is not None else []
             self._publish(self.core.step(tick.t, frames, statuses, self._horizon(tick), srms=self._take_heard(tick.t),
@@ -288,6 +290,16 @@ class RsuApp:
             self.part.ack(tick, time.perf_counter() - c0)
             self.ticks += 1
             self.health.maybe_report()
+
+    def _samples(self, t: float, wait: bool) -> list:
+        """Camera frames and radar scans of time <= t, in time order. `wait` (lockstep): wait for those due at
+        t; else (realtime) every sample that came, the newest per sensor."""
+        out = []
+        for ingest in (self.ingest, self.radar_ingest):
+            if ingest is not None:
+                got = ingest.collect(t, wait=wait)
+                out += got if wait else ingest.newest_only(got)
+        return sorted(out, key=lambda f: (f.t, f.sensor))
 
     def _horizon(self, tick) -> float | None:
         """Lockstep: the earliest simulation time an input still to come may have (`RsuCore.step` works ahead
@@ -317,7 +329,7 @@ class RsuApp:
             # the clock slewed at 0.1 after the master's first slip, was stamped 0.5 s ahead of the clock
             self.latency.rate_source = lambda: self.part.mapping.rtf
             self.t_sim = now
-            frames = self.ingest.newest_only(self.ingest.collect(float("inf"), wait=False)) if self.ingest else []
+            frames = self._samples(float("inf"), wait=False)
             statuses = [(a.status, a.wire_bytes) for a in self.link.collect()] if self.link is not None else []
             acks = self.link.collect_preempt() if self.link is not None else []
             self._publish(self.core.step(now, frames, statuses, srms=self._take_heard(None), acks=acks))
@@ -362,7 +374,7 @@ class RsuApp:
                 log.debug("trace record not published: %s", exc)
 
     def _close(self) -> None:
-        for thing in (self.link, self.ingest, self.part):
+        for thing in (self.link, self.ingest, self.radar_ingest, self.part):
             if thing is not None:
                 try:
                     thing.close()
@@ -415,6 +427,8 @@ class RsuApp:
                          "dropped_busy": core.counters.frames_dropped_busy,
                          "refused": core.counters.frames_refused}
         out["slots_skipped_late"] = core.counters.slots_skipped
+        if self.radar_ingest is not None:
+            out["radar"] = {**self.radar_ingest.stats(), "scans": core.counters.radar_scans}
         p, b = core.perception, core.bsm
         if p is not None:
             out["detector"] = {"backend": self.s.detector.backend, "threads": self.s.detector.threads,

@@ -1,6 +1,7 @@
-"""Camera frames in: the bus subscription (thin) and the busy-detector rule (pure).
+"""Sensor samples in (camera frames, radar scans): the bus subscription (thin) and the busy-detector rule (pure).
 
-`CameraIngest` takes each camera's frames off `camera/<name>`. In lockstep the
+`SensorIngest` takes each sensor's samples off its key (`CameraIngest`:
+`camera/<name>`, `RadarIngest`: `radar/<name>`). In lockstep the
 master publishes a frame of time t before the tick of t, but on another key:
 a 1 MB frame may still be on its way when the tiny tick arrives, so for a tick
 at which a camera's next frame is due, `collect` waits (bounded by
@@ -22,7 +23,7 @@ import threading
 import time
 from collections import Counter
 
-from bridges.camera_stream import KEY, CameraFrame, CameraStreamError, decode_frame
+from bridges import camera_stream, radar_stream
 
 log = logging.getLogger(__name__)
 EPS = 1e-6  # s: simulation times closer than this are the same instant
@@ -48,7 +49,7 @@ class BusyGate:
         self.busy_until = t_start + duration
 
 
-class _CameraState:
+class _SensorState:
     def __init__(self, rate_hz: float):
         self.period = 1.0 / rate_hz
         self.last_t: float | None = None
@@ -58,38 +59,44 @@ class _CameraState:
         self.last_id: int | None = None
 
 
-class CameraIngest:
-    """Frames of the configured cameras, per tick; decoding errors counted in `errors`."""
+class SensorIngest:
+    """Samples of the configured sensors of one kind, per tick; decoding errors counted in `errors`.
+    A sample has `.sensor` (its sensor's name), `.seq` (its number) and `.t`."""
 
-    def __init__(self, bus, cameras: list[str], rate_hz: float = 10.0, wait_s: float = 2.0):
-        self.cameras = list(cameras)
+    kind = "sensor"
+
+    def __init__(self, bus, names: list[str], key: str, decode, error: type[Exception], rate_hz: float = 10.0,
+                 wait_s: float = 2.0):
+        self.names = list(names)
         self.wait_s = wait_s
+        self._decode, self._error = decode, error
         self._q: queue.Queue = queue.Queue(maxsize=64)
-        self._state = {c: _CameraState(rate_hz) for c in self.cameras}
-        self._held: list[CameraFrame] = []
+        self._state = {c: _SensorState(rate_hz) for c in self.names}
+        self._held: list = []
         self.errors: Counter = Counter()
         self.received = 0
         self.late = 0          # due frames that did not come within wait_s
         self.skipped = 0       # frame ids never seen (the bus kept only the newest: realtime)
         self.overflow = 0
         self._lock = threading.Lock()
-        self._subs = [bus.subscribe(KEY.format(c), self._on_message) for c in self.cameras]
+        self._subs = [bus.subscribe(key.format(c), self._on_message) for c in self.names]
 
     # bus thread: decode here so a garbage payload is counted where it arrives
     def _on_message(self, msg) -> None:
         try:
-            frame = decode_frame(msg.payload)
-        except CameraStreamError as exc:
+            frame = self._decode(msg.payload)
+        except self._error as exc:
             reason = str(exc).split(":", 1)[0]
             with self._lock:
                 self.errors[reason] += 1
                 first = self.errors[reason] == 1
-            (log.warning if first else log.debug)("camera frame on %s from %s rejected: %s", msg.key, msg.sender, exc)
+            (log.warning if first else log.debug)("%s sample on %s from %s rejected: %s", self.kind, msg.key,
+                                                  msg.sender, exc)
             return
-        if frame.camera not in self._state:
+        if frame.sensor not in self._state:
             with self._lock:
-                self.errors["camera name differs from its key"] += 1
-            log.debug("camera frame on %s names camera %r", msg.key, frame.camera)
+                self.errors[f"{self.kind} name differs from its key"] += 1
+            log.debug("%s sample on %s names %r", self.kind, msg.key, frame.sensor)
             return
         try:
             self._q.put_nowait(frame)
@@ -102,11 +109,11 @@ class CameraIngest:
             with self._lock:
                 self.overflow += 1
 
-    def _take(self, frame: CameraFrame) -> None:
-        st = self._state[frame.camera]
-        if st.last_id is not None and frame.frame_id > st.last_id + 1:
-            self.skipped += frame.frame_id - st.last_id - 1
-        st.last_id = frame.frame_id
+    def _take(self, frame) -> None:
+        st = self._state[frame.sensor]
+        if st.last_id is not None and frame.seq > st.last_id + 1:
+            self.skipped += frame.seq - st.last_id - 1
+        st.last_id = frame.seq
         if st.last_t is not None and frame.t > st.last_t + EPS:
             st.period = frame.t - st.last_t
         st.last_t = frame.t
@@ -130,10 +137,10 @@ class CameraIngest:
     def _due(self, t: float) -> list[str]:
         return [c for c, st in self._state.items()
                 if not st.absent and (st.next_due is None or t >= st.next_due - EPS)
-                and not any(f.camera == c and f.t >= (st.next_due if st.next_due is not None else t) - EPS
+                and not any(f.sensor == c and f.t >= (st.next_due if st.next_due is not None else t) - EPS
                             for f in self._held)]
 
-    def collect(self, t: float, wait: bool = True) -> list[CameraFrame]:
+    def collect(self, t: float, wait: bool = True) -> list:
         """Frames of time <= t not handed out yet, oldest first. `wait`: lockstep, wait for frames due at t."""
         self._drain()
         if wait:
@@ -150,22 +157,22 @@ class CameraIngest:
                         st.next_due += st.period
                         if st.misses >= MISSES_BEFORE_ABSENT and not st.absent:
                             st.absent = True
-                            log.warning("camera %r: no frame for %d due times; not waiting for it until it sends",
-                                        c, st.misses)
+                            log.warning("%s %r: no sample for %d due times; not waiting for it until it sends",
+                                        self.kind, c, st.misses)
                     break
                 self._drain(timeout=min(left, 0.05))
-        ready = sorted((f for f in self._held if f.t <= t + EPS), key=lambda f: (f.t, f.camera))
+        ready = sorted((f for f in self._held if f.t <= t + EPS), key=lambda f: (f.t, f.sensor))
         self._held = [f for f in self._held if f.t > t + EPS]
         return ready
 
-    def newest_only(self, frames: list[CameraFrame]) -> list[CameraFrame]:
-        """Realtime: of several frames per camera keep the newest (the older ones count as skipped)."""
-        newest: dict[str, CameraFrame] = {}
+    def newest_only(self, frames: list) -> list:
+        """Realtime: of several samples per sensor keep the newest (the older ones count as skipped)."""
+        newest: dict[str, object] = {}
         for f in frames:
-            if f.camera in newest:
+            if f.sensor in newest:
                 self.skipped += 1
-            newest[f.camera] = f
-        return sorted(newest.values(), key=lambda f: (f.t, f.camera))
+            newest[f.sensor] = f
+        return sorted(newest.values(), key=lambda f: (f.t, f.sensor))
 
     def stats(self) -> dict:
         with self._lock:
@@ -178,5 +185,25 @@ class CameraIngest:
             try:
                 s.close()
             except Exception as exc:  # the bus may be gone already
-                log.debug("closing a camera subscription: %s", exc)
+                log.debug("closing a %s subscription: %s", self.kind, exc)
         self._subs = []
+
+
+class CameraIngest(SensorIngest):
+    """Frames of the configured cameras (`camera/<name>`)."""
+
+    kind = "camera"
+
+    def __init__(self, bus, cameras: list[str], rate_hz: float = 10.0, wait_s: float = 2.0):
+        super().__init__(bus, cameras, camera_stream.KEY, camera_stream.decode_frame,
+                         camera_stream.CameraStreamError, rate_hz, wait_s)
+
+
+class RadarIngest(SensorIngest):
+    """Object lists of the configured radars (`radar/<name>`)."""
+
+    kind = "radar"
+
+    def __init__(self, bus, radars: list[str], rate_hz: float = 20.0, wait_s: float = 2.0):
+        super().__init__(bus, radars, radar_stream.KEY, radar_stream.decode_scan, radar_stream.RadarStreamError,
+                         rate_hz, wait_s)

@@ -88,6 +88,23 @@ class CameraSettings:
 
 
 @dataclass
+class RadarSettings:
+    names: list[str] = field(default_factory=list, metadata=_key(
+        "roadside radars to subscribe to (bus keys radar/<name>, the scenario's [world.radars]): their objects "
+        "start and update tracks inside each radar's own coverage, which it states in every scan", "--radar"))
+    rate_hz: float = field(default=20.0, metadata=_key(
+        "expected scan rate before two scans told it (lockstep: when the next scan is due)", positive=True))
+    wait_s: float = field(default=2.0, metadata=_key(
+        "lockstep: wall seconds to wait for a scan that is due before counting it late", low=0.0))
+    label: str = field(default="car", metadata=_key(
+        "the class a radar object votes for: a radar does not tell an ambulance from a car, so a track seen only "
+        "by radar is broadcast as this until a camera names it", choices=("car", "emergency")))
+    score: float = field(default=0.0, metadata=_key(
+        "the weight of a radar object's class vote (a camera box votes its detector score); 0: the label names "
+        "only a track no camera has named, any camera box outvotes it", low=0.0, high=1.0))
+
+
+@dataclass
 class DetectorSettings:
     backend: str = field(default="onnx", metadata=_key(
         "detector backend", "--detector", choices=DETECTORS))
@@ -265,6 +282,7 @@ class Settings:
     app: AppSettings = field(default_factory=AppSettings)
     bus: BusSettings = field(default_factory=BusSettings)
     camera: CameraSettings = field(default_factory=CameraSettings)
+    radar: RadarSettings = field(default_factory=RadarSettings)
     detector: DetectorSettings = field(default_factory=DetectorSettings)
     perception: PerceptionSettings = field(default_factory=PerceptionSettings)
     tracker: TrackerSettings = field(default_factory=TrackerSettings)

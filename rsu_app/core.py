@@ -8,7 +8,8 @@ time order up to t (lockstep: up to the horizon, below), so what the RSU sends
 and when depends only on simulation times and data stamped <= t (lockstep +
 `fixed` latencies repeat bit for bit):
 
-    FRAME  at the frame's time: if the camera's detector is free (BusyGate),
+    FRAME  at the frame's time (a camera frame or a radar scan: the same path, each sensor
+           with its own gate and stage latency): if the camera's detector is free (BusyGate),
            detect + project now, and schedule READY at frame time + stage-1
            latency (the detector is busy until then); else drop the frame.
     READY  the tracker learns the detections (at the frame's time). The first
@@ -71,8 +72,10 @@ from dataclasses import dataclass, field
 from bridges import ab3418
 from rsu_app.bsm_stage import BsmStage, Transmission
 from rsu_app.camera import EPS, BusyGate
+from bridges.radar_stream import RadarScan
+from rsu_app.perception_stage import RADAR as RADAR_KIND
 from rsu_app.perception_stage import FrameResult, PerceptionStage, detection_record
-from rsu_app.timing import DETECT, LatencyModel
+from rsu_app.timing import DETECT, RADAR, LatencyModel
 
 log = logging.getLogger(__name__)
 READY, STATUS, FRAME, BSM, SPAT, MAP, ACK, SRM, SSM = range(9)
@@ -84,6 +87,7 @@ AHEAD_MARGIN = 1e-9
 @dataclass
 class CoreCounters:
     frames: int = 0
+    radar_scans: int = 0
     frames_dropped_busy: int = 0
     frames_refused: int = 0
     bsm_slots: int = 0
@@ -250,23 +254,29 @@ class RsuCore:
 
     # -- stage 1 ------------------------------------------------------------------------------------------
     def _frame(self, when: float, frame) -> None:
-        self.counters.frames += 1
+        radar = isinstance(frame, RadarScan)
+        if radar:
+            self.counters.radar_scans += 1
+        else:
+            self.counters.frames += 1
         if self.perception is None:
             return
-        gate = self.gates.setdefault(frame.camera, BusyGate())
+        sensor = frame.radar if radar else frame.camera
+        gate = self.gates.setdefault(sensor, BusyGate())
         if not gate.offer(when):
             self.counters.frames_dropped_busy += 1
-            log.debug("camera %s frame %d of t = %.3f dropped: the detector is busy until %.3f", frame.camera,
-                      frame.frame_id, frame.t, gate.busy_until)
+            log.debug("%s sample of t = %.3f dropped: its stage 1 is busy until %.3f", sensor, frame.t,
+                      gate.busy_until)
             return
-        result = self.perception.process(frame, when)
+        result = self.perception.process_radar(frame, when) if radar else self.perception.process(frame, when)
         if result is None:
             self.counters.frames_refused += 1
             return
-        latency = self.latency.stage(DETECT, result.compute_s)
+        latency = self.latency.stage(RADAR if radar else DETECT, result.compute_s)
         gate.occupy(when, latency)
         result.detect_start, result.detect_end = when, when + latency
-        self.counters.stage1_charged_s.append(latency)
+        if not radar:
+            self.counters.stage1_charged_s.append(latency)
         ready = when + latency
         # frames of one instant whose detections are ready together update the tracker once
         batch = self._pending_ready.get(ready)
@@ -285,8 +295,8 @@ class RsuCore:
             by_time.setdefault(r.t, []).append(r)
         for _, group in sorted(by_time.items()):
             self.perception.apply(group)
-        if self.trace_detections:
-            self.records += [detection_record(r, self._bsm_id) for r in results]
+        if self.trace_detections:  # boxes on a camera's clip: a radar's objects have none
+            self.records += [detection_record(r, self._bsm_id) for r in results if r.kind != RADAR_KIND]
         if self.sdsm is not None:
             self.sdsm.observe(results)
         if self._bsm_start is None and (self.bsm is not None or self.sdsm is not None):

@@ -36,6 +36,18 @@ vehicle turned out of sight is how a real track becomes a ghost.
 remembers, per track, the stamps of the last frame that saw it: the BSMs of a
 track carry those (FRAME, DETECT_START, DETECT_END).
 
+A roadside radar (`process_radar`) adds what a camera cannot: vehicles far
+out on an approach (advance detection), each as a ground point with the
+covariance of its range and azimuth accuracies, voting for a configured class
+with a small weight (a radar does not tell an ambulance from a car: the
+camera names it once it is near). Each scan states the radar's coverage,
+which does three things: its objects start tracks there (not the camera's
+range limits), a track there may be broadcast, and, once any radar is known,
+a frame's silence counts as a miss only for tracks its sensor could have
+seen (`sees`): a vehicle 150 m out is not missed by every camera frame, and a
+vehicle under the pole is not missed by a radar pointed down the road.
+Without a radar every frame misses every unmatched track, as before.
+
 Each `FrameResult` also keeps every box above the threshold with what became of
 it (its ground detection, or why it was rejected) and, once applied, the track
 each detection updated or started: `detection_record` turns that into the
@@ -62,6 +74,7 @@ from rsu_app.perception.tracker import (GroundDetection, Tracker, TrackerConfig,
 
 log = logging.getLogger(__name__)
 HEADING_RADIUS = 3.0  # m: a track this close to a detection's rough ground point lends it its heading
+CAMERA, RADAR = "camera", "radar"  # FrameResult.kind
 DETECTIONS = "detections"  # the kind of a frame's trace record (master/report/page.py draws these on the clip)
 
 
@@ -78,7 +91,7 @@ class BoxOutcome:
 
 @dataclass
 class FrameResult:
-    camera: str
+    camera: str                   # the sensor's name (a camera's, or a radar's when `kind` is RADAR)
     frame_id: int
     t: float                      # the frame's simulation time (FRAME)
     detections: list[GroundDetection]
@@ -91,6 +104,7 @@ class FrameResult:
     tracks: list[int | None] = field(default_factory=list)   # per detection, once applied: its track's id
     broadcast: frozenset[int] = frozenset()  # of those tracks, the ones worth a BSM (confirmed, in the zone and in
                                              # view: `broadcastable`) once the tracker learned them
+    kind: str = "camera"          # CAMERA or RADAR
 
     def track_of(self, outcome: BoxOutcome) -> int | None:
         """The id of the track a box's detection updated or started; None when rejected or not yet applied."""
@@ -128,18 +142,21 @@ class DetectionZone:
                 log.warning("the master's intersection description %r has no road_width/arm_length: every ground "
                             "point counts as on the road", intersection)
 
+    def on_road(self, x: float, y: float) -> bool:
+        """Whether (x, y) is on a road of the intersection (always, when its roads are not known)."""
+        if self.half_road is None:
+            return True
+        on_x_road = abs(y) <= self.half_road and abs(x) <= self.arm
+        on_y_road = abs(x) <= self.half_road and abs(y) <= self.arm
+        return on_x_road or on_y_road
+
     def reason_to_reject(self, x: float, y: float, camera_xy, tracking: bool = False) -> str | None:
         """Why (x, y) is outside the zone, or None: for a ground point to track (`tracking`, out to
         track_range_m) or for a track to broadcast (out to max_range_m)."""
         limit, name = (self.track_range_m, "track_range_m") if tracking else (self.max_range_m, "max_range_m")
         if math.hypot(x - camera_xy[0], y - camera_xy[1]) > limit:
             return f"beyond {name}"
-        if self.half_road is not None:
-            on_x_road = abs(y) <= self.half_road and abs(x) <= self.arm
-            on_y_road = abs(x) <= self.half_road and abs(y) <= self.arm
-            if not (on_x_road or on_y_road):
-                return "off the road"
-        return None
+        return None if self.on_road(x, y) else "off the road"
 
 
 def box_noise(settings) -> BoxNoise:
@@ -165,12 +182,17 @@ class PerceptionStage:
         s, p = settings, settings.perception
         zone = DetectionZone(p.max_range_m, intersection, p.on_road_only, p.road_margin_m, p.track_range_m)
         return cls(detector, Tracker(tracker_config(s)), zone, s.detector.score_threshold, p.merge_radius_m,
-                   p.border_px, box_noise(s) if p.ground_covariance else None)
+                   p.border_px, box_noise(s) if p.ground_covariance else None, radar_label=s.radar.label,
+                   radar_score=s.radar.score)
 
     def __init__(self, detector, tracker: Tracker, zone: DetectionZone, score_threshold: float,
-                 merge_radius_m: float = 2.5, border_px: float = 2.0, noise: BoxNoise | None = None):
+                 merge_radius_m: float = 2.5, border_px: float = 2.0, noise: BoxNoise | None = None,
+                 radar_label: str = "car", radar_score: float = 0.0):
         """`noise`: each ground point carries the covariance `geo.ground_fix` gives under it; None: the points
-        carry none and the tracker counts each as its `meas_std`."""
+        carry none and the tracker counts each as its `meas_std`. `radar_label`/`radar_score`: the class a
+        radar object votes for, and how much."""
+        self.radar_label, self.radar_score = radar_label, radar_score
+        self.radars: dict = {}  # radar -> its last scan (bridges.radar_stream.RadarScan): where it sees
         self.detector, self.tracker, self.zone = detector, tracker, zone
         self.score_threshold = score_threshold
         self.merge_radius_m, self.border_px = merge_radius_m, border_px
@@ -266,14 +288,60 @@ class PerceptionStage:
             return "cut by the image border, no track near"
         return GroundDetection(gx, gy, det.label, float(det.score), cov)
 
+    def process_radar(self, scan, t_now: float) -> FrameResult:
+        """One radar scan's objects as ground detections (those off the road rejected, counted)."""
+        c0 = time.perf_counter()
+        self.radars[scan.radar] = scan
+        ground, rejected = [], {}
+        for obj in scan.objects:
+            gx, gy = scan.ground_point(obj)
+            if not self.zone.on_road(gx, gy):
+                rejected["off the road"] = rejected.get("off the road", 0) + 1
+                continue
+            ground.append(GroundDetection(gx, gy, self.radar_label, self.radar_score, scan.ground_covariance(obj)))
+        for k, v in rejected.items():
+            self.rejected[k] = self.rejected.get(k, 0) + v
+        compute = time.perf_counter() - c0
+        return FrameResult(scan.radar, scan.scan_id, float(scan.t), ground, len(scan.objects), compute,
+                           rejected=rejected, kind=RADAR)
+
+    def _covers(self, sensor: str, x: float, y: float) -> bool:
+        """Whether `sensor` (a camera or radar seen so far) could detect a vehicle at (x, y)."""
+        if sensor in self.radars:
+            return self.radars[sensor].covers(x, y)
+        view = self.views.get(sensor)
+        if view is None:
+            return False
+        camera = view[0]
+        return (math.hypot(x - camera.position[0], y - camera.position[1]) <= self.zone.track_range_m
+                and self._in_camera(view, x, y))
+
+    def sees(self, results: list[FrameResult]):
+        """The tracker's `sees` for one batch of results: None while no radar is known (every frame sees
+        everything, as a camera-only RSU always did); else a point is seen when a sensor of the batch covers it,
+        or when no sensor does (a track out of every sensor's coverage still misses, and ends)."""
+        if not self.radars:
+            return None
+        batch = {r.camera for r in results}
+        every = set(self.views) | set(self.radars)
+
+        def sees(x: float, y: float) -> bool:
+            return any(self._covers(n, x, y) for n in batch) or not any(self._covers(n, x, y) for n in every)
+        return sees
+
+    def in_radar_coverage(self, x: float, y: float) -> bool:
+        return any(scan.covers(x, y) for scan in self.radars.values())
+
+    @staticmethod
+    def _in_camera(view, x: float, y: float, height_m: float = 0.75) -> bool:
+        camera, width, height = view
+        uv, depth = camera.project([[x, y, height_m]])
+        u, v = uv[0]
+        return bool(depth[0] > 0.5 and 0 <= u < width and 0 <= v < height)
+
     def in_view(self, x: float, y: float, height_m: float = 0.75) -> bool:
         """Whether a ground point (at a vehicle's mid height) projects inside some camera's image."""
-        for camera, width, height in self.views.values():
-            uv, depth = camera.project([[x, y, height_m]])
-            u, v = uv[0]
-            if depth[0] > 0.5 and 0 <= u < width and 0 <= v < height:
-                return True
-        return False
+        return any(self._in_camera(view, x, y, height_m) for view in self.views.values())
 
     def broadcastable(self, states: list[TrackState]) -> list[TrackState]:
         """The confirmed tracks worth a BSM: in the detection zone and still in a camera's view: their centre
@@ -290,8 +358,10 @@ class PerceptionStage:
     def _worth_sending(self, s: TrackState) -> bool:
         """`broadcastable`'s test for one confirmed track (without its count); True before any frame told
         the stage its cameras."""
-        if not self.views:
+        if not self.views and not self.radars:
             return True
+        if self.radars and self.in_radar_coverage(s.x, s.y) and self.zone.on_road(s.x, s.y):
+            return True  # a radar watches it: its silence there would end the track
         zone_ok = any(self.zone.reason_to_reject(s.x, s.y, cam.position[:2]) is None
                       for cam, _, _ in self.views.values())
         return zone_ok and (s.missed == 0 or self.in_view(s.x, s.y))
@@ -305,7 +375,7 @@ class PerceptionStage:
             t = self.tracker.t
         dets = [d for r in results for d in r.detections]
         try:
-            states = self.tracker.update(t, dets)
+            states = self.tracker.update(t, dets, sees=self.sees(results))
         except TrackerError as exc:
             log.warning("tracker refused the detections of t = %.3f: %s", t, exc)
             return time.perf_counter() - c0

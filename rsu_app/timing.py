@@ -3,7 +3,7 @@
 Stage names (what a scenario's `[participants.NAME] latencies = {...}` sets
 under the `fixed` policy): ``detect`` (stage 1: frame -> objects ready:
 detected, projected to the ground, tracked), ``encode`` (J2735 UPER) and
-``sign`` (1609.2). Stage 2 of the seed paper is encode + sign (+ the send,
+``sign`` (1609.2); optionally ``radar`` (a radar scan's objects ready). Stage 2 of the seed paper is encode + sign (+ the send,
 which costs no simulated time here: the air adds the radio's own latency).
 
 * lockstep, ``fixed``: the configured value, whatever the computer did, so a
@@ -25,6 +25,8 @@ log = logging.getLogger(__name__)
 
 DETECT, ENCODE, SIGN = "detect", "encode", "sign"
 STAGE_NAMES = (DETECT, ENCODE, SIGN)
+RADAR = "radar"  # a radar scan's objects -> ground points: optional under `fixed` (default 0, no warning): the
+                 # radar did its own detection before it sent the scan, what is left costs microseconds
 
 
 class LatencyModel:
@@ -61,6 +63,8 @@ class LatencyModel:
         if name == DETECT and self.inference_s is not None:
             return self.inference_s
         if self.policy == "fixed":
+            if name == RADAR:
+                return self.latencies.get(RADAR, 0.0)
             if name not in self.latencies:
                 if name not in self.missing:
                     self.missing.add(name)

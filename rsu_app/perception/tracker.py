@@ -342,8 +342,12 @@ class Tracker:
             raise TrackerError(f"time went backwards: {t} after {self.t}")
         return t
 
-    def update(self, t: float, detections) -> list[TrackState]:
-        """Fold in the ground detections of one frame taken at time t; returns the confirmed tracks."""
+    def update(self, t: float, detections, sees=None) -> list[TrackState]:
+        """Fold in the ground detections of one frame taken at time t; returns the confirmed tracks.
+
+        `sees(x, y)`: whether the frame's sensor could have seen a track at (x, y); a track it could not see
+        neither misses nor counts a frame towards confirmation (one sensor's silence says nothing of a vehicle
+        in another sensor's coverage). None: the frame saw everything, every track left unmatched misses."""
         self.last_assignment = []  # a refused update associates nothing
         t = self._check_time(t)
         dets = [d if isinstance(d, GroundDetection) else GroundDetection(*d) for d in detections]
@@ -370,12 +374,20 @@ class Tracker:
             tr.hits.append(True)
             tr.missed = 0
             tr.votes[d.label] = tr.votes.get(d.label, 0.0) + d.score
+        unseen: set[int] = set()
         for i, tr in enumerate(self.tracks):
-            if i not in matched_t:
-                tr.hits.append(False)
-                tr.missed += 1
+            if i in matched_t:
+                continue
+            if sees is not None and not sees(*tr.filter.position_and_cov()[0]):
+                unseen.add(id(tr))
+                continue
+            tr.hits.append(False)
+            tr.missed += 1
         keep = []
         for tr in self.tracks:
+            if id(tr) in unseen:
+                keep.append(tr)
+                continue
             tr.frames += 1
             tr.maybe_switch(cfg)
             if not tr.confirmed and sum(tr.hits) >= cfg.confirm_hits:
