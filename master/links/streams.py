@@ -1,12 +1,13 @@
-"""The world's sensors on the bus: camera frames, lidar scans and GNSS fixes at their own rates.
+"""The world's sensors on the bus: camera frames, lidar scans, radar object lists and GNSS fixes at their rates.
 
 Keys (under the run prefix): `camera/<camera>` (bridges.camera_stream payload,
 raw or JPEG), `lidar/<vehicle>` and `gnss/<vehicle>` (bridges.sensor_stream
-payloads). Each message carries the simulation time of the sample; the
-master publishes them after the step that produced them, so in lockstep an app
-sees them before the tick of that time. In realtime a sample carries the run
-clock's time at which it was published (`RunContext.stamp_time`), as a real
-sensor stamps its capture time on the clock the apps share.
+payloads), `radar/<radar>` (bridges.radar_stream payload). Each message carries
+the simulation time of the sample; the master publishes them after the step
+that produced them, so in lockstep an app sees them before the tick of that
+time. In realtime a sample carries the run clock's time at which it was
+published (`RunContext.stamp_time`), as a real sensor stamps its capture time
+on the clock the apps share.
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import dataclasses
 
 from typing import Any
 
+from bridges import radar_stream
 from bridges.camera_stream import CameraPublisher
 from bridges.sensor_stream import GNSS_KEY, LIDAR_KEY, encode_fix, encode_scan
 from master.hooks import Hook, Outcome, RunContext
@@ -26,7 +28,7 @@ class SensorStreams:
         self.bus = bus
         self.camera = CameraPublisher(bus, camera_encoding) if camera_encoding != "off" else None
         self.labels = labels or {}
-        self.counts = {"camera": 0, "lidar": 0, "gnss": 0}
+        self.counts = {"camera": 0, "lidar": 0, "gnss": 0, "radar": 0}
 
     def __call__(self, kind: str, name: str, t: float, data: Any) -> None:
         if kind == "camera":
@@ -37,6 +39,8 @@ class SensorStreams:
             self.bus.publish(LIDAR_KEY.format(name), encode_scan(data, self.labels), t)
         elif kind == "gnss":
             self.bus.publish(GNSS_KEY.format(name), encode_fix(data), t)
+        elif kind == "radar":
+            self.bus.publish(radar_stream.KEY.format(name), radar_stream.encode_scan(data), t)
         else:
             return
         self.counts[kind] += 1
@@ -75,7 +79,7 @@ class StreamsHook(Hook):
         stamp = self.ctx.stamp_time(t)
         if stamp != t:
             t = stamp
-            if kind == "camera":
+            if kind in ("camera", "radar"):  # their payloads carry the sample's time too
                 data = dataclasses.replace(data, t=stamp)
         streams(kind, name, t, data)
 

@@ -42,6 +42,16 @@ intersection is centred at the origin, one road along x and one along y.
     bias_walk_h = 0.0; bias_walk_v = 0.0          # random-walk bias (m per sqrt(s)); 0 = none
     seed = 0                        # with the vehicle's name: the noise stream
 
+    [world.radars.west]             # a roadside traffic radar (master/world/radar.py), keyed by name
+    position = [6.5, 6.5, 6.0]      # antenna (m); required
+    heading_deg = 180.0             # boresight, deg CCW from +x; required
+    fov_deg = 16.0                  # full horizontal field of view, (0, 360]
+    min_range_m = 5.0; max_range_m = 250.0   # slant range limits (m)
+    rate_hz = 20.0                  # scans per second
+    sigma_range_m = 0.25; sigma_azimuth_deg = 0.25; sigma_speed = 0.1   # 1-sigma noise
+    p_detect = 0.98                 # chance an object in coverage with a clear view is reported, (0, 1]
+    seed = 1                        # the radar's own noise stream
+
     [[world.signals]]               # a traffic-light head: pole, housing, red/yellow/green lamps
     name = "nb_head"; x = 5.5; y = 5.5      # pole foot (m)
     yaw = 270.0                     # direction the lamps face, deg CCW from +x (toward the drivers)
@@ -51,6 +61,7 @@ intersection is centred at the origin, one road along x and one along y.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -60,7 +71,7 @@ from master.scenario.tables import Table, did_you_mean, is_number
 DEFAULT_WHEELBASE = 2.3927  # VehicleDynamics default (CommonRoad vehicle 1)
 VEHICLE_KINDS = ("car", "emergency")
 TLC_MODEL = "TrafficLightController"
-_TOP = ("origin", "intersection", "buildings", "cameras", "vehicles", "signals")
+_TOP = ("origin", "intersection", "buildings", "cameras", "vehicles", "signals", "radars")
 _INTERSECTION = ("road_width", "lane_width", "arm_length", "sidewalk_width")
 _BUILDING = ("name", "x", "y", "size_x", "size_y", "height")
 _CAMERA = ("name", "x", "y", "z", "yaw", "pitch", "roll", "width", "height", "fov_deg", "rate_hz")
@@ -68,6 +79,9 @@ _VEHICLE = ("length", "width", "height", "color", "kind", "rear_overhang", "lida
 _LIDAR = ("channels", "horizontal_samples", "range", "rate_hz", "fov_up", "fov_down", "mount_above_roof")
 _GNSS = ("rate_hz", "sigma_h", "sigma_v", "sigma_heading_deg", "sigma_speed", "bias_walk_h", "bias_walk_v",
          "seed")
+_RADAR = ("position", "heading_deg", "fov_deg", "min_range_m", "max_range_m", "rate_hz", "sigma_range_m",
+          "sigma_azimuth_deg", "sigma_speed", "p_detect", "seed")
+_RADAR_NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 _SIGNAL = ("name", "x", "y", "yaw", "signal_group", "instance", "height")
 _VEHICLE_DEFAULTS = {"car": (4.5, 1.8, 1.5, (0.15, 0.3, 0.8)), "emergency": (6.5, 2.3, 2.6, (0.9, 0.1, 0.1))}
 
@@ -135,6 +149,23 @@ class GnssSpec:
 
 
 @dataclass
+class RadarSpec:
+    """A mast-mounted traffic radar (master/world/radar.py); angles in degrees as the scenario writes them."""
+    name: str
+    position: tuple[float, float, float]  # antenna, world metres
+    heading_deg: float                    # boresight, CCW from +x
+    fov_deg: float = 16.0                 # full horizontal field of view
+    min_range_m: float = 5.0              # slant range limits
+    max_range_m: float = 250.0
+    rate_hz: float = 20.0
+    sigma_range_m: float = 0.25           # 1-sigma noise of each reported quantity
+    sigma_azimuth_deg: float = 0.25
+    sigma_speed: float = 0.1              # m/s
+    p_detect: float = 0.98                # per object and scan, when covered and in clear view
+    seed: int = 1
+
+
+@dataclass
 class SignalSpec:
     name: str
     x: float
@@ -171,6 +202,7 @@ class WorldLayout:
     vehicles: dict[str, VehicleSpec] = field(default_factory=dict)
     signals: list[SignalSpec] = field(default_factory=list)
     origin: GeoOrigin = field(default_factory=GeoOrigin)
+    radars: dict[str, RadarSpec] = field(default_factory=dict)
 
     @property
     def half_extent(self) -> float:
@@ -195,6 +227,12 @@ class WorldLayout:
         for v in out["vehicles"].values():
             v.pop("name")
             v["color"] = list(v["color"])
+        if out["radars"]:
+            for r in out["radars"].values():
+                r.pop("name")
+                r["position"] = list(r["position"])
+        else:  # a world without radars resolves as it did before they existed
+            del out["radars"]
         return out
 
 
@@ -251,6 +289,7 @@ def parse_world(table: Any, instances: dict, problem: Callable[[str, str], None]
     layout.cameras = _cameras(t, layout.buildings, half)
     layout.vehicles = _vehicles(t, instances, half)
     layout.signals = _signals(t, instances, layout.buildings, half)
+    layout.radars = _radars(t, layout.buildings, half)
     return layout if t.ok else None
 
 
@@ -396,6 +435,58 @@ def _gnss(t: Table) -> GnssSpec | None:
              for k in ("sigma_h", "sigma_v", "sigma_heading_deg", "sigma_speed", "bias_walk_h", "bias_walk_v")}
     return GnssSpec(rate_hz=t.number("rate_hz", d.rate_hz, **_POSITIVE),
                     seed=t.number("seed", d.seed, integer=True, **_NONNEG), **noise)
+
+
+def _radars(world: Table, buildings: list[Building], half: float) -> dict[str, RadarSpec]:
+    """`[world.radars.NAME]`: keyed by name (as vehicles are), each radar's table read and checked.
+
+    Sigmas must be > 0 (the wire format, bridges.radar_stream, states them as
+    accuracies an app divides by) and the ranges positive with max > min.
+    """
+    radars = world.sub("radars", "a table of [world.radars.NAME] tables")
+    out: dict[str, RadarSpec] = {}
+    d = RadarSpec("", (0.0, 0.0, 0.0), 0.0)
+    for name in radars.raw:
+        t = radars.sub(name)
+        if not t.ok:
+            continue
+        t.unknown_keys(_RADAR)
+        if not _RADAR_NAME.match(name):
+            t.problem(None, f"name {name!r} must be letters, digits, '_' or '-' (it names the bus key radar/NAME)")
+        position = t.get("position")
+        if "position" not in t:
+            t.problem("position", "required: [x, y, z] in metres")
+            position = (0.0, 0.0, 0.0)
+        elif (not isinstance(position, list | tuple) or len(position) != 3
+              or not all(is_number(v) for v in position)):
+            t.problem("position", f"expected [x, y, z] as three finite numbers (m), got {position!r}")
+            position = (0.0, 0.0, 0.0)
+        elif position[2] < 0:
+            t.problem("position", f"z must be >= 0 (above the ground), got {position[2]!r}")
+        position = tuple(float(v) for v in position)
+        r = RadarSpec(
+            name, position,
+            t.number("heading_deg", 0.0, required=True, expected="a finite number (deg CCW from +x)"),
+            t.number("fov_deg", d.fov_deg, low=0, high=360, low_open=True),
+            t.number("min_range_m", d.min_range_m, **_POSITIVE),
+            t.number("max_range_m", d.max_range_m, **_POSITIVE),
+            t.number("rate_hz", d.rate_hz, **_POSITIVE),
+            t.number("sigma_range_m", d.sigma_range_m, **_POSITIVE),
+            t.number("sigma_azimuth_deg", d.sigma_azimuth_deg, **_POSITIVE),
+            t.number("sigma_speed", d.sigma_speed, **_POSITIVE),
+            t.number("p_detect", d.p_detect, low=0, high=1, low_open=True),
+            t.number("seed", d.seed, integer=True, **_NONNEG))
+        if r.max_range_m <= r.min_range_m:
+            t.problem("max_range_m", f"must exceed min_range_m ({r.max_range_m} <= {r.min_range_m})")
+        x, y, z = r.position
+        if max(abs(x), abs(y)) > half:
+            t.problem("position", f"outside the map at ({x}, {y}) (|x|, |y| <= arm_length {half})")
+        for i, b in enumerate(buildings):
+            (x0, y0, z0), (x1, y1, z1) = b.bounds
+            if x0 <= x <= x1 and y0 <= y <= y1 and z0 <= z <= z1:
+                t.problem("position", f"inside building world.buildings[{i}] ({b.name})")
+        out[name] = r
+    return out
 
 
 def _tlc_instances(instances: dict) -> list[str]:

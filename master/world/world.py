@@ -1,9 +1,10 @@
-"""`World`: the scene with its cameras and lidar; `WorldParticipant`: the world in the master's loop."""
+"""`World`: the scene with its cameras, lidar and radars; `WorldParticipant`: the world in the master's loop."""
 from __future__ import annotations
 
 import math
 from typing import Any
 
+from bridges.radar_stream import RadarScan
 from master.hooks import Hook, Outcome, RunContext
 from master.stats import percentiles
 from master.world.camera import Camera
@@ -11,12 +12,16 @@ from master.world.gnss import Fix, Gnss
 from master.world.layout import WorldLayout
 from master.world.lidar import Lidar, Scan, hits_by_vehicle
 from master.world.los import line_of_sight
+from master.world.radar import Radar, targets
 from master.world.scene import Scene
 from master.world.signals import state_name
 
 
 class World:
-    """Scene, cameras and lidar over one private pybullet DIRECT client. Close it (or use `with`)."""
+    """Scene, cameras, lidar and radars over one private pybullet DIRECT client. Close it (or use `with`).
+
+    The radars need no pybullet: they see the vehicles' poses and the buildings' boxes (master/world/radar.py).
+    """
 
     def __init__(self, layout: WorldLayout):
         self.layout = layout
@@ -26,6 +31,7 @@ class World:
             self.cameras = {s.name: Camera(s, c, self.scene.renderer) for s in layout.cameras}
             self.lidars = {v.name: Lidar(v, v.lidar, c, self.scene.vehicle_ids[v.name])
                            for v in layout.vehicles.values() if v.lidar is not None}
+            self.radars = {n: Radar(s, self._clear) for n, s in layout.radars.items()}
         except Exception:
             self.scene.close()
             raise
@@ -40,6 +46,13 @@ class World:
     def scan(self, name: str, t: float = 0.0) -> Scan:
         x, y, yaw, _ = self.scene.poses[name]
         return self.lidars[name].scan((x, y, yaw), t)
+
+    def radar_scan(self, name: str, t: float = 0.0) -> RadarScan:
+        """Radar `name`'s scan of the vehicles as posed now."""
+        return self.radars[name].scan(t, targets(self.scene.poses, self.layout.vehicles))
+
+    def _clear(self, p, q) -> bool:
+        return not line_of_sight(p, q, self.layout.buildings)[0]
 
     def hits_by_vehicle(self, scan: Scan) -> dict[str, int]:
         """Rays of `scan` that hit each vehicle, by name (the carrier never hits itself)."""
@@ -76,9 +89,11 @@ class WorldParticipant(Hook):
     """The world in the master's loop. After each step it poses the vehicle bodies from
     their FMUs' outputs, sets the signal heads from their controllers' state_k outputs,
     and, at each sensor's rate, renders the cameras, scans the lidars (keeping which
-    vehicles each scan hit) and takes GNSS fixes. Stores no images: counts and times.
+    vehicles each scan hit), scans the radars (keeping when each vehicle was reported,
+    from the radar's truth: the scans themselves name no vehicle) and takes GNSS fixes.
+    Stores no images: counts and times.
 
-    `sensors=False` leaves cameras, lidars and GNSS out (a snapshot needs only the poses).
+    `sensors=False` leaves cameras, lidars, radars and GNSS out (a snapshot needs only the poses).
     """
 
     def __init__(self, layout: WorldLayout, start: float, sensors: bool = True):
@@ -92,7 +107,8 @@ class WorldParticipant(Hook):
         self._gnss_err2: dict[str, list[float]] = {}
         self.scans: dict[str, list[tuple[float, dict[str, int]]]] = {}  # lidar -> (t, rays per vehicle hit)
         self.signal_log: list[tuple[float, str, int]] = []  # (t, head, new state)
-        # called as listener(kind, name, t, data) for each camera Frame, lidar Scan and GNSS Fix
+        self.radar_log: dict[str, list[tuple[float, list[str]]]] = {}  # radar -> (t, vehicles reported)
+        # called as listener(kind, name, t, data) for each camera Frame, lidar Scan, radar RadarScan and GNSS Fix
         self.listeners: list[Any] = []
 
     name = "world"
@@ -125,6 +141,8 @@ class WorldParticipant(Hook):
             self._schedules = {("camera", n): Schedule(self.start, c.spec.rate_hz) for n, c in w.cameras.items()}
             self._schedules.update({("lidar", n): Schedule(self.start, l.spec.rate_hz) for n, l in w.lidars.items()})
             self.scans = {n: [] for n in w.lidars}
+            self._schedules.update({("radar", n): Schedule(self.start, r.spec.rate_hz) for n, r in w.radars.items()})
+            self.radar_log = {n: [] for n in w.radars}
             for v in self.layout.vehicles.values():
                 if v.gnss is not None:
                     self.gnss[v.name] = Gnss(v.gnss, v.name)
@@ -150,6 +168,9 @@ class WorldParticipant(Hook):
             elif kind == "lidar":
                 data = w.scan(name, t_next)
                 self.scans[name].append((t_next, w.hits_by_vehicle(data)))
+            elif kind == "radar":
+                data = w.radar_scan(name, t_next)
+                self.radar_log[name].append((t_next, list(w.radars[name].reported)))
             else:
                 data = self._take_fix(name, t_next)
             for listener in self.listeners:
@@ -175,6 +196,18 @@ class WorldParticipant(Hook):
         return {"scans": len(scans), "rate_hz": lidar.spec.rate_hz, "rays_per_scan": len(lidar.directions),
                 "scan_s": percentiles(lidar.scan_times), "vehicles": seen}
 
+    def radar_metadata(self, name: str) -> dict[str, Any]:
+        radar = self.world.radars[name]
+        log = self.radar_log.get(name, [])
+        seen: dict[str, dict[str, Any]] = {}
+        for vehicle in self.layout.vehicles:
+            times = [t for t, names in log if vehicle in names]
+            seen[vehicle] = {"first_report_s": times[0] if times else None,
+                             "last_report_s": times[-1] if times else None, "scans_reported": len(times)}
+        return {"scans": len(log), "rate_hz": radar.spec.rate_hz,
+                "objects_reported": sum(len(names) for _, names in log),
+                "scan_s": percentiles(radar.scan_times), "vehicles": seen}
+
     def metadata(self) -> dict[str, Any]:
         w = self.world
         if w is None:
@@ -191,6 +224,7 @@ class WorldParticipant(Hook):
                             "rate_hz": c.spec.rate_hz, "render_s": percentiles(c.render_times)}
                         for n, c in w.cameras.items()},
             "lidars": {n: self.lidar_metadata(n) for n in w.lidars},
+            "radars": {n: self.radar_metadata(n) for n in w.radars},
             "gnss": {n: {"fixes": len(f), "rate_hz": self.gnss[n].spec.rate_hz,
                          "error_h_rms_m": (math.sqrt(sum(self._gnss_err2[n]) / len(f)) if f else None)}
                      for n, f in self.fixes.items()},
