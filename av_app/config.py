@@ -153,6 +153,19 @@ class RouteSection:
 
 
 @dataclass(frozen=True)
+class CoverageSection:
+    edges: list = _f([], "where the RSU's detection coverage ends on each approach whose traffic crosses or joins "
+                         "the route: [[x, y, heading_deg, speed], ...] (local metres, the approach's lane centre; its "
+                         "travel heading, degrees CCW from east; its design speed, m/s: the limit plus a margin). "
+                         "While the RSU is heard a phantom vehicle stands there at that speed: what the RSU cannot "
+                         "see is not empty")
+    max_silence_s: float = _f(1.5, "phantoms only while a V2X frame was heard within this (the RSU sends a MAP "
+                                   "every second): without the RSU its coverage says nothing", positive=True)
+    length: float = _f(4.5, "a phantom's length, m", positive=True)
+    width: float = _f(1.8, "a phantom's width, m", positive=True)
+
+
+@dataclass(frozen=True)
 class ControlSection:
     lookahead_min_m: float = _f(3.0, "pure pursuit: shortest look-ahead, m", positive=True)
     lookahead_time_s: float = _f(0.6, "pure pursuit: look-ahead = max(min, speed * this)", low=0.0)
@@ -240,6 +253,7 @@ class AvConfig:
     ego: EgoSection = field(default_factory=EgoSection)
     vehicle: VehicleSection = field(default_factory=VehicleSection)
     route: RouteSection = field(default_factory=RouteSection)
+    coverage: CoverageSection = field(default_factory=CoverageSection)
     control: ControlSection = field(default_factory=ControlSection)
     planner: PlannerSection = field(default_factory=PlannerSection)
     signals: SignalsSection = field(default_factory=SignalsSection)
@@ -337,6 +351,18 @@ def _semantic(cfg: AvConfig, problems: list[str]) -> None:
         for i, (a, b) in enumerate(zip(wps, wps[1:])):
             if math.dist(a, b) < 1e-6:
                 problems.append(f"route.waypoints: points {i} and {i + 1} coincide ({a})")
+    edges = cfg.coverage.edges
+    if not isinstance(edges, list):
+        problems.append(f"coverage.edges: expected a list of [x, y, heading_deg, speed], got {edges!r}")
+    else:
+        for i, e in enumerate(edges):
+            ok = isinstance(e, list) and len(e) == 4 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in e)
+            if not ok:
+                problems.append(f"coverage.edges[{i}]: expected [x, y, heading_deg, speed] as finite numbers, "
+                                f"got {e!r}")
+            elif e[3] <= 0:
+                problems.append(f"coverage.edges[{i}]: the speed must be > 0, got {e[3]!r}")
     psids = cfg.obu.sdsm_psids
     if not psids or not all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 0xFFFFFFFF for v in psids):
         problems.append(f"obu.sdsm_psids: expected a list of PSIDs (integers 0..0xFFFFFFFF), got {psids!r}")

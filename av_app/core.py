@@ -71,6 +71,7 @@ class AvCore:
         self._self_counted: dict[str, float] = {}  # object id -> measurement time of its last BSM counted as self
         self._self_now: list[tuple[str, str, float]] = []  # (id, rule, distance) left out of the last object list
         self._v2x: dict[str, list[list]] = {}  # object id -> [[usable from (FUSE), V2xObject], ...]
+        self._heard_t: float | None = None  # when a V2X frame (the RSU's) was last accepted: phantoms need it
         self._lidar: list[tuple[float, list[LidarObject]]] = []
         self._lidar_now: list[LidarObject] = []
         self._pending: list[_Pending] = []
@@ -117,6 +118,7 @@ class AvCore:
         except Rejected as exc:
             self.health.mark(f"rejected:{exc.reason}", t_rx)
             return None
+        self._heard_t = t_rx if self._heard_t is None else max(self._heard_t, t_rx)
         t_verify = self.clock.charge("verify", t_rx, acc.wall_s["verify"])
         t_decode = self.clock.charge("decode", t_verify, acc.wall_s["decode"])
         # fuse: the object joins the list the planner fuses from (association itself runs at plan time)
@@ -170,7 +172,17 @@ class AvCore:
             v2x.append(obj)
         while len(self._lidar) and self._lidar[0][0] <= t + 1e-12:
             self._lidar_now = self._lidar.pop(0)[1]
-        return fuse(v2x, self._lidar_now, t, cfg.fusion)
+        return fuse(v2x, self._lidar_now, t, cfg.fusion) + self._phantoms(t)
+
+    def _phantoms(self, t: float) -> list[FusedObject]:
+        """A vehicle at each edge of the RSU's coverage (`coverage.edges`) at its approach's design speed, while
+        the RSU is heard: beyond the edge the RSU cannot say the road is empty (issue 38, item 2). Each plan puts
+        it at the edge again, so it costs the ego only what a vehicle just out of sight would."""
+        cov = self.cfg.coverage
+        if not cov.edges or self._heard_t is None or t - self._heard_t > cov.max_silence_s:
+            return []
+        return [FusedObject(f"phantom:{i}", "phantom", t, float(x), float(y), math.radians(h), float(v), 0.0,
+                            cov.length, cov.width) for i, (x, y, h, v) in enumerate(cov.edges)]
 
     def _count_self(self, obj: V2xObject, check: SelfCheck, t: float) -> None:
         """`counts["v2x_self"]`: object lists that left a BSM out as the ego; `self_bsms[rule]`: distinct BSMs

@@ -196,3 +196,29 @@ def test_the_lane_centre_shift(x, y, yaw, shift):
     from av_app.lanes import LaneMap
 
     assert LaneMap(7.0, 120.0).centre_shift(_object(x, y, yaw)) == pytest.approx(shift)
+
+
+@pytest.mark.parametrize("edge_x, speed, slows", [(-243.4, 20.8, False), (-52.9, 20.8, True)])
+def test_a_phantom_at_the_shipped_coverage_edge_costs_nothing_one_at_the_cameras_edge_stops_the_cav(
+        edge_x, speed, slows):
+    """The shipped av.toml puts a phantom where the RSU's radar stops seeing the west approach (250 m from the
+    pole): at the cav's comfortable commit point it plans as if the road were empty. The same phantom at the
+    camera's 60 m edge (x = -52.9) would make it yield at every crossing (docs/ima-timing.md)."""
+    from pathlib import Path
+
+    from av_app.config import load
+    from av_app.fusion import FusedObject
+    from av_app.lanes import LaneMap
+    from av_app.planner import Planner
+    from av_app.route import Route
+
+    cfg = load(Path(__file__).resolve().parent.parent / "scenarios" / "apps" / "av.toml",
+               {"security": {"trust_anchor": "", "allow_unsecured": True}})
+    assert cfg.coverage.edges and cfg.coverage.edges[0][0] == pytest.approx(-243.4, abs=1.0)
+    route = Route(cfg.route.waypoints, cfg.route.corner_radius)
+    v = math.sqrt(cfg.route.lateral_accel_max * cfg.route.corner_radius)
+    s = ZONE - MARGIN - v * v / (2 * cfg.control.decel_comfort)
+    x, y, yaw, _ = route.at(s)
+    phantom = FusedObject("phantom:0", "phantom", 0.0, edge_x, -1.75, 0.0, speed, 0.0, 4.5, 1.8)
+    plan = Planner(cfg, route, LaneMap(7.0, 250.0)).plan(0.0, (float(x), float(y), float(yaw)), v, [phantom])
+    assert (plan.decision not in ("cruise", "go")) is slows, (plan.decision, plan.choices)

@@ -527,3 +527,28 @@ def test_stage_clock_uses_scenario_latencies_over_the_config():
     assert StageClock("realtime", None, LatencySection(), now=lambda: 7.5).charge("plan", 2.0, 0.0) == 7.5
     with pytest.raises(ValueError):
         StageClock("sometimes", None, LatencySection())
+
+
+def test_a_phantom_stands_at_each_coverage_edge_only_while_the_rsu_is_heard(pki):
+    """Issue 38 item 2: what the RSU cannot see is not empty. A phantom at each configured edge of its coverage,
+    at the approach's design speed, while V2X frames come; none before the first and none once the RSU falls
+    silent for longer than coverage.max_silence_s."""
+    core = core_for(pki, coverage={"edges": [[-243.4, -1.75, 0.0, 20.8]], "max_silence_s": 1.0})
+    feed_ego(core, 0.0)
+    assert [o.source for o in core.objects(0.0)] == []  # nothing heard: the coverage says nothing
+    frame = signed(pki["rsu"], bsm(0.010, -60.0, -1.75, 0.0, 16.667), 0.010)
+    assert core.on_v2x(frame, 0.0151) is not None
+    objs = {o.source: o for o in core.objects(0.1)}
+    assert set(objs) == {"v2x", "phantom"}
+    p = objs["phantom"]
+    assert (p.x, p.y, p.speed, p.yaw) == (-243.4, -1.75, 20.8, 0.0) and p.t == 0.1 and not p.emergency
+    assert [o.source for o in core.objects(1.2)] == []  # the BSM aged out and the RSU is silent: no phantom
+
+
+@pytest.mark.parametrize("edges, bad", [([[1.0, 2.0, 0.0]], "coverage.edges[0]"),
+                                        ([[1.0, 2.0, 0.0, -3.0]], "the speed must be > 0"),
+                                        ("west", "expected a list")])
+def test_bad_coverage_edges_are_named(edges, bad):
+    with pytest.raises(ConfigError) as exc:
+        build({"security": {"allow_unsecured": True}, "coverage": {"edges": edges}})
+    assert bad in str(exc.value)
