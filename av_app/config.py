@@ -82,6 +82,9 @@ class ObuSection:
                                       "self_hold_heading_deg); beyond, the id is forgotten", low=1.0)
     self_hold_heading_deg: float = _f(45.0, "heading agreement an id held as the ego needs, deg", low=0.0,
                                       high=180.0)
+    self_hold_lag_s: float = _f(1.5, "... or within it of a heading the ego had in this last while: an RSU's "
+                                     "constant-velocity track lags a turn (measured 45 deg behind just after the "
+                                     "case study's right turn), s", low=0.0)
     self_hold_slow_speed: float = _f(1.5, "an id held as the ego needs no heading agreement while it or the ego is "
                                           "slower than this (a standing vehicle's track heading is noise), m/s",
                                      low=0.0)

@@ -19,7 +19,11 @@ heading can flip by ~180 degrees while the vehicle stands. So the rules are:
   recognised as the ego stays the ego while its centre is within
   ``self_hold_factor * self_gate_m`` and its heading within
   ``self_hold_heading_deg`` of the ego's (any heading when either speed is
-  below ``self_hold_slow_speed``). The first BSM of the id outside that gate
+  below ``self_hold_slow_speed``), or within it of any heading the ego had in
+  the last ``self_hold_lag_s``: a constant-velocity track lags a turn, and
+  just after the case study's right turn the cav's own track still pointed
+  45 degrees behind it (taken for another vehicle, it made the cav brake
+  hard for its own ghost). The first BSM of the id outside that gate
   forgets it, so a vehicle that later goes by under the same id is an obstacle
   again.
 
@@ -29,6 +33,7 @@ the set of held ids, so tests drive it directly.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 from av_app.config import ObuSection, VehicleSection
@@ -65,6 +70,8 @@ class EgoRecognizer:
         self.hold_gate = obu.self_hold_factor * obu.self_gate_m
         self.hold_heading = math.radians(obu.self_hold_heading_deg)
         self.hold_slow = obu.self_hold_slow_speed
+        self.hold_lag = obu.self_hold_lag_s
+        self._yaws: deque[tuple[float, float]] = deque()  # (t, ego yaw) of the last hold_lag seconds
         self.centre_offset = vehicle.length / 2 - vehicle.rear_overhang  # rear axle -> centre
         self.held: set[tuple[str, str]] = set()  # (station, temporary id) recognised as the ego
 
@@ -80,12 +87,13 @@ class EgoRecognizer:
         d = math.hypot(x - cx, y - cy)
         dyaw = abs(math.atan2(math.sin(yaw - state.yaw), math.cos(yaw - state.yaw)))
         key = self.key(obj)
+        self._remember(t, state.yaw)
         if obj.surrogate:
             if d < self.gate:
                 self.held.add(key)
                 return SelfCheck(SURROGATE, d, dyaw)
             slow = obj.speed < self.hold_slow or state.v < self.hold_slow
-            if key in self.held and d < self.hold_gate and (dyaw < self.hold_heading or slow):
+            if key in self.held and d < self.hold_gate and (self._recent_heading(yaw) < self.hold_heading or slow):
                 return SelfCheck(HOLD, d, dyaw)
             self.held.discard(key)
             return SelfCheck(None, d, dyaw)
@@ -93,6 +101,16 @@ class EgoRecognizer:
         if d < self.gate and heading_ok and abs(obj.speed - state.v) < OWN_SPEED_TOL:
             return SelfCheck(OWN_BSM, d, dyaw)
         return SelfCheck(None, d, dyaw)
+
+    def _remember(self, t: float, yaw: float) -> None:
+        if not self._yaws or t > self._yaws[-1][0]:
+            self._yaws.append((t, yaw))
+        while self._yaws and self._yaws[0][0] < t - self.hold_lag:
+            self._yaws.popleft()
+
+    def _recent_heading(self, yaw: float) -> float:
+        """The smallest |yaw difference| to a heading the ego had in the last hold_lag seconds, rad."""
+        return min(abs(math.atan2(math.sin(yaw - y), math.cos(yaw - y))) for _, y in self._yaws)
 
     def forget(self, obj: V2xObject) -> None:
         """The object is gone (aged out): its id is no longer held."""

@@ -552,3 +552,25 @@ def test_bad_coverage_edges_are_named(edges, bad):
     with pytest.raises(ConfigError) as exc:
         build({"security": {"allow_unsecured": True}, "coverage": {"edges": edges}})
     assert bad in str(exc.value)
+
+
+def test_a_held_id_may_lag_a_turn_by_the_headings_the_ego_had_in_the_last_self_hold_lag_s():
+    """The RSU's constant-velocity track of the cav lags its right turn: just after it, the track pointed 45 deg
+    behind the cav, the hold's heading test failed, and the cav braked hard for its own ghost (issue 38's late
+    case with the mast radar). A heading the ego had within obu.self_hold_lag_s still holds the id; an older
+    one does not."""
+    from dataclasses import replace
+
+    oid = "v2x:0000c0de"
+    rec, state = recognizer(), ego_state(6.0)
+    turning = [replace(state, yaw=EGO_YAW - math.radians(a)) for a in (0, 30, 60, 90)]  # north to east
+    assert rec.check(v2x_obj(1.0, 0.0, speed=6.0, oid=oid), turning[0], 0.0).rule == "surrogate"
+    for k, s in enumerate(turning[1:], 1):
+        rec.check(v2x_obj(1.0, 0.0, yaw_rel=-math.radians(30 * k), speed=6.0, oid=oid), s, 0.3 * k)
+    east = turning[-1]
+    lagging = v2x_obj(-4.0, 0.0, yaw_rel=-math.radians(40), speed=6.0, oid=oid)  # 50 deg behind the ego now
+    assert rec.check(lagging, east, 1.0).rule == "hold"
+    late = recognizer(self_hold_lag_s=0.0)
+    assert late.check(v2x_obj(1.0, 0.0, speed=6.0, oid=oid), turning[0], 0.0).rule == "surrogate"
+    assert late.check(lagging, east, 1.0).rule is None  # only the ego's heading now: 50 > 45 deg
+    assert rec.check(lagging, east, 3.0).rule is None  # 2 s after the turn: no lag excuses it any more

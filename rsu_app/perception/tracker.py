@@ -345,9 +345,11 @@ class Tracker:
     def update(self, t: float, detections, sees=None) -> list[TrackState]:
         """Fold in the ground detections of one frame taken at time t; returns the confirmed tracks.
 
-        `sees(x, y)`: whether the frame's sensor could have seen a track at (x, y); a track it could not see
-        neither misses nor counts a frame towards confirmation (one sensor's silence says nothing of a vehicle
-        in another sensor's coverage). None: the frame saw everything, every track left unmatched misses."""
+        `sees(x, y)`: whether the frame's sensor could have seen a track at (x, y), predicted to t; a track it
+        could not see is left exactly as it is: not predicted, not associated, no miss, no frame towards
+        confirmation (one sensor's silence says nothing of a vehicle in another sensor's coverage, and a
+        camera-only track evolves as it would without the radar). None: the frame saw everything, every
+        track left unmatched misses."""
         self.last_assignment = []  # a refused update associates nothing
         t = self._check_time(t)
         dets = [d if isinstance(d, GroundDetection) else GroundDetection(*d) for d in detections]
@@ -358,12 +360,18 @@ class Tracker:
                 raise TrackerError(f"detection covariance (var_x, cov_xy, var_y) must be finite and positive "
                                    f"definite, got {d.cov}")
         cfg = self.cfg
+        unseen: set[int] = set()  # tracks this frame's sensor could not see: left exactly as they are
+        if sees is not None:
+            for tr in self.tracks:
+                e = tr.filter.estimate(max(t - tr.t, 0.0))
+                if not sees(e.x, e.y):
+                    unseen.add(id(tr))
         for tr in self.tracks:
             dt = t - tr.t
-            if dt > 0:
+            if dt > 0 and id(tr) not in unseen:
                 tr.filter.predict(dt)
                 tr.t = t
-        pairs = self._associate(dets)
+        pairs = self._associate(dets, unseen)
         matched_t = {i for i, _ in pairs}
         matched_d = {j for _, j in pairs}
         assignment = [0] * len(dets)
@@ -374,12 +382,8 @@ class Tracker:
             tr.hits.append(True)
             tr.missed = 0
             tr.votes[d.label] = tr.votes.get(d.label, 0.0) + d.score
-        unseen: set[int] = set()
         for i, tr in enumerate(self.tracks):
-            if i in matched_t:
-                continue
-            if sees is not None and not sees(*tr.filter.position_and_cov()[0]):
-                unseen.add(id(tr))
+            if i in matched_t or id(tr) in unseen:
                 continue
             tr.hits.append(False)
             tr.missed += 1
@@ -405,15 +409,17 @@ class Tracker:
                 self._next_id += 1
         self.last_assignment = assignment
         for tr in self.tracks:
-            tr.heading = tr.state(t, tr.filter.estimate(), cfg.min_speed).heading
+            if id(tr) not in unseen:
+                tr.heading = tr.state(t, tr.filter.estimate(), cfg.min_speed).heading
         self.t = t
         return self.predict(t)
 
-    def _associate(self, dets: list[GroundDetection]) -> list[tuple[int, int]]:
+    def _associate(self, dets: list[GroundDetection], unseen: set[int] = frozenset()) -> list[tuple[int, int]]:
         """(track index, detection index) pairs: a matching cascade, confirmed tracks first, then the
-        detections they left against the tentative tracks (why: the module docstring)."""
-        confirmed = [i for i, tr in enumerate(self.tracks) if tr.confirmed]
-        tentative = [i for i, tr in enumerate(self.tracks) if not tr.confirmed]
+        detections they left against the tentative tracks (why: the module docstring). Tracks in `unseen`
+        (ids of tracks the frame's sensor could not see) take no detection."""
+        confirmed = [i for i, tr in enumerate(self.tracks) if tr.confirmed and id(tr) not in unseen]
+        tentative = [i for i, tr in enumerate(self.tracks) if not tr.confirmed and id(tr) not in unseen]
         pairs = self._match(confirmed, list(range(len(dets))), dets)
         taken = {j for _, j in pairs}
         return pairs + self._match(tentative, [j for j in range(len(dets)) if j not in taken], dets)
