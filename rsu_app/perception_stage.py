@@ -33,8 +33,11 @@ nothing can confirm it any more, and coasting on a straight line after a
 vehicle turned out of sight is how a real track becomes a ghost.
 
 `apply(result)` folds the detections into the tracker at the frame's time and
-remembers, per track, the stamps of the last frame that saw it: the BSMs of a
-track carry those (FRAME, DETECT_START, DETECT_END).
+remembers, per track, the stamps of the last camera frame that updated it: the
+BSMs of a track carry those (FRAME, DETECT_START, DETECT_END), so the run's
+latency chain stays the camera's, as the seed paper measured it. A track last
+updated by a radar scan carries none (a radar scan is no camera frame, and an
+older frame's stamps would read as a stale chain).
 
 A roadside radar (`process_radar`) adds what a camera cannot: vehicles far
 out on an approach (advance detection), each as a ground point with the
@@ -381,10 +384,12 @@ class PerceptionStage:
             return time.perf_counter() - c0
         self.detections += len(dets)
         note_tracks(results, self.tracker.last_assignment, {s.id for s in states if self._worth_sending(s)})
-        latest = max(results, key=lambda r: r.detect_end)
-        for s in states:
-            if s.missed == 0:
-                self.track_stamps[s.id] = TrackStamps(latest.t, latest.detect_start, latest.detect_end)
+        for r in results:  # the stamps of the camera frame that last updated each track (the paper's chain)
+            for tid in r.tracks:
+                if r.kind == CAMERA:
+                    self.track_stamps[tid] = TrackStamps(r.t, r.detect_start, r.detect_end)
+                else:  # a radar sample is no camera frame: its BSMs carry no FRAME stamps, and no older ones
+                    self.track_stamps.pop(tid, None)
         alive = {tr.id for tr in self.tracker.tracks}
         for tid in [k for k in self.track_stamps if k not in alive]:
             del self.track_stamps[tid]

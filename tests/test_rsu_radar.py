@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 
 import numpy as np
 import pytest
@@ -80,6 +81,7 @@ def test_the_ingest_counts_garbage_by_reason_and_hands_over_good_scans_in_time_o
         pub.publish("radar/west", encode_scan(scan(t=0.05, scan_id=1)), 0.05)
         pub.publish("radar/west", encode_scan(scan(t=0.0, scan_id=0)), 0.0)
         pub.publish("radar/west", encode_scan(scan(t=0.1, scan_id=2, radar="east")), 0.1)
+        time.sleep(0.3)  # the bus delivers on its own thread: let all four arrive (two out of order)
         got = ingest.collect(0.05, wait=True)
         assert [g.t for g in got] == [0.0, 0.05]
         stats = ingest.stats()
@@ -178,3 +180,23 @@ def test_a_radar_scan_goes_through_the_core_and_out_as_bsms():
     speeds = [b.speed for _, b in sent]
     assert np.all(np.isfinite(np.asarray([[b.latitude, b.longitude] for _, b in sent], float)))
     assert speeds[-1] == pytest.approx(20.1, abs=1.5)
+
+
+def test_bsm_stamps_are_the_last_camera_frames_a_radar_scan_neither_restamps_nor_lends_its_own():
+    """The run's latency chain is the camera's (the seed paper's stage 1): a radar scan that did not update a
+    camera track leaves its stamps alone; a track the radar updated last carries none."""
+    p = stage(hits=1)
+    cav = Vehicle(1.75, -30.0, math.pi / 2, 8.0)
+    r = p.process(FakeFrame("rsu_cam", 0, 0.0, Pixels(0.0, [cav])), 0.0)
+    r.detect_start, r.detect_end = 0.0, 0.05
+    p.apply([r])
+    (cam_track,) = p.tracker.last_assignment
+    assert p.track_stamps[cam_track].frame == 0.0
+    ev = Vehicle(-150.0, -1.75, 0.0, 20.0)
+    rs = p.process_radar(scan([observe(*ev.at(0.05), ev.v)], t=0.05, scan_id=1), 0.05)
+    rs.detect_start = rs.detect_end = 0.05
+    p.apply([rs])
+    (radar_track,) = p.tracker.last_assignment
+    assert radar_track != cam_track
+    assert p.track_stamps[cam_track].frame == 0.0  # not restamped by a scan that could not see it
+    assert radar_track not in p.track_stamps
