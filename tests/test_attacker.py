@@ -141,7 +141,7 @@ def drive(pki, ctx: Context, until: float = 4.0) -> AvCore:
 
 def test_believed_the_ghost_would_stop_the_cav_refused_it_changes_nothing(pki):
     """Positive control for the attack run: the ghost ambulance of scenarios/apps/attacker.toml, had its frames
-    verified, makes the AV brake well before the real emergency vehicle does (3.76 s in the case study)."""
+    verified, makes the AV brake for it within 3 s, with no real vehicle anywhere."""
     believed = drive(pki, context(pki, genuine=True))
     assert believed.health.first["first_brake"] < 3.0
     assert {"yield", "brake_hard"} & set(believed.health.decisions)
