@@ -1,7 +1,8 @@
 """A payload made of a JSON header and binary body: 4-byte big-endian header length, header, body.
 
 Shared by the camera and lidar streams, so an app on another machine can read
-the metadata of a frame without knowing its binary layout first.
+the metadata of a frame without knowing its binary layout first; and
+`json_object`, the front door of the all-JSON ones (GNSS fixes, radar scans).
 """
 from __future__ import annotations
 
@@ -28,3 +29,18 @@ def unpack(payload: bytes, error: type[Exception], what: str) -> tuple[dict, byt
     if not isinstance(header, dict):
         raise error(f"{what}: header: not a JSON object")
     return header, payload[4 + n:]
+
+
+def json_object(payload: bytes, required, error: type[Exception], what: str) -> dict:
+    """`payload` as a JSON object holding every key of `required`; raises `error` naming `what` and the
+    reason (not JSON, not an object, the missing keys): the small sensor messages' common front door."""
+    try:
+        d = json.loads(payload)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise error(f"{what}: not JSON ({exc})") from None
+    if not isinstance(d, dict):
+        raise error(f"{what}: not a JSON object")
+    missing = [k for k in required if k not in d]
+    if missing:
+        raise error(f"{what}: missing {', '.join(missing)}")
+    return d

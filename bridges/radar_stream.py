@@ -21,6 +21,8 @@ import json
 import math
 from dataclasses import dataclass, field
 
+from bridges.headed_payload import json_object
+
 KEY = "radar/{}"
 _HEADER = ("radar", "scan_id", "t", "position", "heading", "fov", "min_range_m", "max_range_m",
            "sigma_range_m", "sigma_azimuth", "sigma_speed", "objects")
@@ -115,15 +117,7 @@ def _number(d: dict, key: str, problems: list[str], low: float | None = None, po
 
 def decode_scan(payload: bytes) -> RadarScan:
     """The scan in `payload`; raises RadarStreamError naming every bad or missing key."""
-    try:
-        d = json.loads(payload)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise RadarStreamError(f"radar: not JSON ({exc})") from None
-    if not isinstance(d, dict):
-        raise RadarStreamError("radar: not a JSON object")
-    missing = [k for k in _HEADER if k not in d]
-    if missing:
-        raise RadarStreamError(f"radar: missing {', '.join(missing)}")
+    d = json_object(payload, _HEADER, RadarStreamError, "radar")
     problems: list[str] = []
     if not isinstance(d["radar"], str) or not d["radar"]:
         problems.append(f"radar: not a name ({d['radar']!r})")

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bridges.headed_payload import pack, unpack
+from bridges.headed_payload import json_object, pack, unpack
 
 LIDAR_KEY, GNSS_KEY = "lidar/{}", "gnss/{}"
 _FIX_FIELDS = ("t", "x", "y", "z", "heading", "speed")
@@ -39,15 +39,7 @@ class GnssFix:
 
 
 def decode_fix(payload: bytes) -> GnssFix:
-    try:
-        d = json.loads(payload)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise SensorStreamError(f"gnss: not JSON ({exc})") from None
-    if not isinstance(d, dict):
-        raise SensorStreamError("gnss: not a JSON object")
-    missing = [k for k in _FIX_FIELDS if k not in d]
-    if missing:
-        raise SensorStreamError(f"gnss: missing {', '.join(missing)}")
+    d = json_object(payload, _FIX_FIELDS, SensorStreamError, "gnss")
     try:
         values = [float(d[k]) for k in _FIX_FIELDS]
     except (TypeError, ValueError):
