@@ -15,6 +15,7 @@ import serial
 from bridges import ab3418 as a
 from master.run.cosim import CoSimulation
 from master.errors import ScenarioError
+from master.hooks import Hook
 from master.scenario.loader import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -31,7 +32,9 @@ def tlc_fmu() -> Path:
     return result.path
 
 
-def start_run(run_dir: Path, stop: float = 1.0, mode: str = "lockstep", **serial_options):
+def start_run(run_dir: Path, stop: float = 1.0, mode: str = "lockstep", front=None, **serial_options):
+    """A run of the signal scenario in a thread; `front`: a hook stepped before all of the scenario's (where
+    the apps' tick is)."""
     sc = load_scenario(SCENARIO)
     sc.time.stop, sc.time.mode = stop, mode
     spec = sc.serial["tlc"]
@@ -41,6 +44,8 @@ def start_run(run_dir: Path, stop: float = 1.0, mode: str = "lockstep", **serial
     for name in ("err_garbage", "err_oversize", "err_unknown_type", "err_truncated", "responses_sent"):
         sc.record.append(("tlc", name))
     cosim = CoSimulation(sc, run_dir, quiet=True)
+    if front is not None:
+        cosim.hooks = lambda: [front] + CoSimulation.hooks(cosim)
     results = []
     thread = threading.Thread(target=lambda: results.append(cosim.run()), daemon=True)
     thread.start()
@@ -123,6 +128,35 @@ def test_turn_sync_makes_simulated_times_independent_of_the_client_pace(tmp_path
         finish(thread, results)
         runs.append((answers, [(t, d, e) for t, d, e, _ in exchanges(events(tmp_path / name))]))
     assert runs[0] == runs[1]
+
+
+def test_turn_sync_the_clients_next_request_is_in_before_the_next_step_begins(tmp_path, tlc_fmu):
+    """The apps' tick goes out at the start of a step, on another socket than the answer's bytes. So that an
+    app has the answer in hand at the tick of the step after it, the master waits for the client's next
+    request (written once it has read the answer) before it starts that step: a client that dawdles 0.3 s
+    after reading an answer has written before the step its request enters begins."""
+    begun: list[tuple[float, float]] = []  # (t, wall) of every step's start
+
+    class StepStarts(Hook):
+        name = "step_starts"
+
+        def before_step(self, k, t):
+            begun.append((t, time.monotonic()))
+
+    cosim, thread, results = start_run(tmp_path / "run", front=StepStarts())
+    with serial.serial_for_url(cosim.serial.urls["tlc"], timeout=10) as port:
+        port.write(a.request(a.GET_LONG_STATUS8))
+        answer = port.read(40)
+        time.sleep(0.3)
+        written = time.monotonic()
+        port.write(a.request(a.GET_LONG_STATUS8))
+        port.read(40)
+    finish(thread, results)
+    assert len(answer) == 40
+    (_, delivered, _, _), (t2, _, _, _) = exchanges(events(tmp_path / "run"))[:2]
+    assert t2 == pytest.approx(delivered, abs=1e-9)
+    (start,) = [wall for t, wall in begun if abs(t - t2) < 1e-9]
+    assert start >= written, f"the step at {t2} s began {written - start:.3f} s before the client wrote"
 
 
 def test_realtime_free_sync_round_trip(tmp_path, tlc_fmu):

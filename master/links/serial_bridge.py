@@ -38,6 +38,9 @@ of silence) or disconnected; the bytes enter at that communication point. So a
 request sent after reading an answer enters at the first communication point after
 the answer's last byte, whatever the wall-clock speed of the client, and its
 processing time counts as zero simulated time (a fixed-latency policy of 0).
+The wait comes at the end of the step that left the link idle, before the next
+step's tick to the apps: a client that has written its next request has read
+the answer, so an app dates the answer by that tick on any machine load.
 A client that stays silent for ``turn_timeout`` loses the turn: the master runs
 free until it writes again (logged as ``turn_timeout``), so a client that never
 polls cannot stall a run. With ``sync = "free"`` (always in realtime mode) the
@@ -267,16 +270,7 @@ class SerialBridge:
     def before_step(self, t: float) -> None:
         """Hand the client's bytes to the FMU at communication point t (waiting for them under sync = turn)."""
         with self._cond:
-            if self.sync == "turn" and self._link_idle and not self._turn_lost and self._conn is not None \
-                    and not self._inbox:
-                self.stats["turn_waits"] += 1
-                w0 = time.monotonic()
-                got = self._cond.wait_for(lambda: self._inbox or self._conn is None, self.spec.turn_timeout)
-                self.stats["turn_wait_wall_s"] += time.monotonic() - w0
-                if not got:
-                    self._turn_lost = True
-                    self.stats["turn_timeouts"] += 1
-                    self._log({"t": t, "event": "turn_timeout", "waited_s": self.spec.turn_timeout})
+            self._await_turn_locked(t)  # the first step's (after_step waits for every later one)
             if self._inbox and self.sync == "turn":
                 gap = self.spec.collect_gap  # the client's write ends after `gap` of silence
                 while self._conn is not None:
@@ -298,10 +292,36 @@ class SerialBridge:
             self._set_rx([""])
             self._rx_nonempty = False
 
+    def _await_turn_locked(self, t: float) -> None:
+        """Under sync = turn, while the link is idle: wait for the client's write (or its disconnect); a client
+        silent for turn_timeout loses the turn."""
+        if self.sync == "turn" and self._link_idle and not self._turn_lost and self._conn is not None \
+                and not self._inbox:
+            self.stats["turn_waits"] += 1
+            w0 = time.monotonic()
+            got = self._cond.wait_for(lambda: self._inbox or self._conn is None, self.spec.turn_timeout)
+            self.stats["turn_wait_wall_s"] += time.monotonic() - w0
+            if not got:
+                self._turn_lost = True
+                self.stats["turn_timeouts"] += 1
+                self._log({"t": t, "event": "turn_timeout", "waited_s": self.spec.turn_timeout})
+
     def after_step(self, t_next: float) -> None:
-        """Send what the FMU transmitted during the step to the client."""
+        """Send what the FMU transmitted during the step to the client; under sync = turn, once the link is
+        idle, wait for the client's next write here, before the next step's tick.
+
+        Why here and not only in before_step: the apps' tick (the participants hook) comes before this hook's
+        before_step, and the answer's bytes (TCP) and the tick (the bus) take different sockets, so a loaded
+        machine can deliver the tick first and the app dates the answer a step late (the EVSP case's "granted"
+        moved by 10 ms between two runs). A client that reads an answer and writes its next request has the
+        answer in hand before its write: waiting for the write makes the answer the tick's."""
         if self._get_idle is not None:
             self._link_idle = bool(self._get_idle()[0])
+        self._send_tx(t_next)
+        with self._cond:
+            self._await_turn_locked(t_next)
+
+    def _send_tx(self, t_next: float) -> None:
         raw = self._get_tx()[0]
         text = raw.decode("ascii", "replace") if isinstance(raw, bytes) else str(raw or "")
         if not text:
