@@ -107,6 +107,11 @@ class PerceptionSection:
     road_margin_m: float = _f(2.0, "a cluster whose centre is farther than this beyond the kerb (off the roads "
                                     "the master describes) is static structure (0: keep every cluster)", low=0.0)
     gate_m: float = _f(2.5, "association gate between a track's prediction and a cluster, m", positive=True)
+    fragments: bool = _f(True, "a cluster whose centre is inside the footprint of a track that took another "
+                               "cluster of the scan is a piece of that vehicle (an occluder split it), not a new "
+                               "track")
+    fragment_margin_m: float = _f(0.5, "how far beyond a track's footprint (its longest and widest box, along "
+                                       "its motion) a piece's centre may lie, m", low=0.0)
     confirm_scans: int = _f(2, "scans a track needs before it is reported", low=1)
     max_missed: int = _f(2, "scans a track survives without a cluster", low=0)
     accel_noise: float = _f(4.0, "track filter process noise (m/s^2, white acceleration)", positive=True)
@@ -115,7 +120,8 @@ class PerceptionSection:
 
 @dataclass(frozen=True)
 class FusionSection:
-    gate_m: float = _f(3.0, "a V2X object and a lidar track closer than this are one object, m", positive=True)
+    gate_m: float = _f(3.0, "a V2X object and a lidar track closer than this (plus half of what the lidar box "
+                                   "misses of the BSM's size) are one object, m", positive=True)
     lidar_sigma: float = _f(0.3, "position std of a lidar track, m (fusion weight)", positive=True)
 
 

@@ -136,6 +136,11 @@ class _Track:
         self.kf = kf
         self.hits, self.missed = 1, 0
         self.box = cl
+        self.extent = self._extent(cl, (0.0, 0.0))  # the longest and widest box seen: the vehicle's size
+
+    def _extent(self, cl: Cluster, seen: tuple[float, float]) -> tuple[float, float]:
+        cap = (self.cfg.static_length, self.cfg.static_width)  # never larger than a vehicle
+        return min(max(seen[0], cl.length), cap[0]), min(max(seen[1], cl.width), cap[1])
 
     def _FQ(self, dt: float):
         F = np.eye(4)
@@ -160,6 +165,7 @@ class _Track:
         self.hits += 1
         self.missed = 0
         self.box = cl
+        self.extent = self._extent(cl, self.extent)
 
     def report(self) -> LidarObject:
         x, y, vx, vy = (float(v) for v in self.kf.x)
@@ -193,6 +199,7 @@ class LidarTracker:
         self.scans = 0
         self.last_clusters = 0
         self.last_static: list[LidarObject] = []
+        self.fragments = 0  # clusters taken as pieces of a tracked vehicle (see _fragments)
 
     def update(self, t: float, clusters: list[Cluster]) -> list[LidarObject]:
         """Take one scan's clusters at time t; returns the confirmed tracks and the static structure."""
@@ -217,6 +224,7 @@ class LidarTracker:
             rows, cols = linear_sum_assignment(np.where(cost <= gate, cost, big))
             pairs = [(r, c) for r, c in zip(rows, cols) if cost[r, c] <= gate[r, 0]]
         used_t, used_c = {r for r, _ in pairs}, {c for _, c in pairs}
+        used_c |= self._fragments(pairs, moving)
         for r, c in pairs:
             self.tracks[r].update(moving[c])
         for i, tr in enumerate(self.tracks):
@@ -231,6 +239,37 @@ class LidarTracker:
         self.last_static = [LidarObject(f"static:{i}", t, c.x, c.y, c.yaw, 0.0, 0.0, 0.0, c.length, c.width, True,
                                         1, 0.1) for i, c in enumerate(static)]
         return self.objects()
+
+    def _fragments(self, pairs, moving: list[Cluster]) -> set[int]:
+        """The unmatched clusters that are pieces of a vehicle whose other piece a track took this scan.
+
+        An occluder between the lidar and a passing vehicle splits it in clusters; the track takes the
+        nearest piece and, without this, another starts a track of its own whose velocity comes from a
+        sliver's centre jumping as the split moves (measured: a 0.75 x 0.01 m piece of the ev that had just
+        crossed, "moving" west at 5.4 m/s, braked the cav at 6 m/s^2). A piece is a cluster whose centre lies
+        inside the footprint of a matched track - its longest and widest box so far, centred on its
+        prediction, along its motion (its box axis when slow) - plus `fragment_margin_m`: the centre of
+        another vehicle cannot be inside this one."""
+        if not pairs or not self.cfg.fragments:
+            return set()
+        taken = {c for _, c in pairs}
+        margin = self.cfg.fragment_margin_m
+        out = set()
+        for c, cl in enumerate(moving):
+            if c in taken:
+                continue
+            for r, _ in pairs:
+                tr = self.tracks[r]
+                x, y, vx, vy = (float(v) for v in tr.kf.x)
+                yaw = math.atan2(vy, vx) if math.hypot(vx, vy) > 1.0 else tr.box.yaw
+                dx, dy = cl.x - x, cl.y - y
+                along = dx * math.cos(yaw) + dy * math.sin(yaw)
+                across = -dx * math.sin(yaw) + dy * math.cos(yaw)
+                if abs(along) <= tr.extent[0] / 2 + margin and abs(across) <= tr.extent[1] / 2 + margin:
+                    out.add(c)
+                    break
+        self.fragments += len(out)
+        return out
 
     def objects(self) -> list[LidarObject]:
         confirmed = [tr.report() for tr in self.tracks if tr.hits >= self.cfg.confirm_scans]
