@@ -40,7 +40,9 @@ the answer's last byte, whatever the wall-clock speed of the client, and its
 processing time counts as zero simulated time (a fixed-latency policy of 0).
 The wait comes at the end of the step that left the link idle, before the next
 step's tick to the apps: a client that has written its next request has read
-the answer, so an app dates the answer by that tick on any machine load.
+the answer, so an app dates the answer by that tick on any machine load. (A
+client that writes only after a tick, which no app here does, would wait out
+``turn_timeout`` each time the link goes idle: give it ``sync = "free"``.)
 A client that stays silent for ``turn_timeout`` loses the turn: the master runs
 free until it writes again (logged as ``turn_timeout``), so a client that never
 polls cannot stall a run. With ``sync = "free"`` (always in realtime mode) the
