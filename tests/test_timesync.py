@@ -182,6 +182,40 @@ def test_the_participants_realtime_clock_never_goes_back(buses):
     p.close()
 
 
+def test_the_realtime_clock_never_goes_back_across_threads(buses):
+    """Two threads read the clock at once: one whose reading of the mapping (10 s) is slow, one that reads
+    20 s meanwhile. Without a lock the slow one then stored its 10 s over the 20 s, and a later reading of
+    15 s went back from 20 s; read-max-write is one step, so the second thread waits for the first."""
+    import threading
+
+    c = coordinator(buses("master"), "rt", mode="realtime")
+    p = Participant(buses("rt"), "rt", "x", auto_offset=False)
+    p.join(5)
+    first_in, release = threading.Event(), threading.Event()
+
+    class Mapping:  # what the master's mapping reads, scripted per call
+        readings = iter([10.0, 20.0, 15.0])
+
+        def sim_time(self, ns):
+            value = next(self.readings)
+            if value == 10.0:
+                first_in.set()
+                release.wait(0.5)  # held until the other thread has read (or, with the lock, gave up waiting)
+            return value
+
+    p.mapping = Mapping()
+    slow = threading.Thread(target=p.sim_time_now)
+    slow.start()
+    assert first_in.wait(5)
+    newer = p.sim_time_now()
+    release.set()
+    slow.join(5)
+    assert newer == 20.0
+    assert p.sim_time_now() == 20.0  # the 15 s reading is held at 20 s: the clock never went back
+    c.close()
+    p.close()
+
+
 # -- memory bus ------------------------------------------------------------------------------------
 def test_memory_bus_delivery_isolation_and_bounds(buses, prefix):
     a, b = buses("a"), buses("b")

@@ -78,6 +78,7 @@ class Participant:
         self.skipped_ticks = 0  # realtime: ticks passed over because the app was busy
         self.stale_acks = 0  # lockstep: acks not sent, a newer tick having come (a late join's first tick)
         self._lock = threading.Lock()
+        self._clock_lock = threading.Lock()  # sim_time_now's read-max-write of _last_sim_time, across threads
         self._ticks: queue.Queue = queue.Queue()
         self._welcomes: queue.Queue = queue.Queue()
         self._pongs: queue.Queue = queue.Queue()
@@ -244,8 +245,12 @@ class Participant:
                 raise TimeSyncError(f"participant '{self.name}': no time mapping from the master yet")
             # the master's mapping only slews forward, but a new one arrives a bus delay late and the
             # offset estimate is refreshed: read through both, the clock still never goes back
-            now = max(self._last_sim_time, self.mapping.sim_time(self.master_time_ns()))
-            self._last_sim_time = now
+            # under a lock of its own: the app's tick thread and its stages (camera ingest, the latency
+            # model) read the clock at once, and an unguarded read-max-write let a thread that read the
+            # mapping first store its older time after another had returned a newer one
+            with self._clock_lock:
+                now = max(self._last_sim_time, self.mapping.sim_time(self.master_time_ns()))
+                self._last_sim_time = now
             return now
         if self.tick is None:
             raise TimeSyncError(f"participant '{self.name}': no tick yet")
