@@ -9,10 +9,12 @@ and a check that names the bad setting before any socket opens.
 """
 from __future__ import annotations
 
+import errno
 import ipaddress
 import socket
 import struct
 import sys
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -127,9 +129,10 @@ from can.interfaces.udp_multicast.bus import (SO_TIMESTAMPNS, GeneralPurposeUdpM
 class _InterfaceMulticast(GeneralPurposeUdpMulticastBus):
     """python-can's multicast socket handler with the group joined on one IPv4 interface."""
 
-    def __init__(self, group: str, port: int, hop_limit: int, iface: str):
+    def __init__(self, group: str, port: int, hop_limit: int, iface: str, errors: list | None = None):
         self._iface = iface
-        super().__init__(group, port, hop_limit)
+        self._errors = errors if errors is not None else []  # why a socket could not be made (python-can logs
+        super().__init__(group, port, hop_limit)               # it at INFO and raises without the reason)
 
     def _create_socket(self, address_family):
         if address_family != socket.AF_INET:
@@ -155,10 +158,31 @@ class _InterfaceMulticast(GeneralPurposeUdpMulticastBus):
                     sock.setsockopt(socket.IPPROTO_IP, _IP_MULTICAST_ALL, 0)
                 except OSError:
                     pass
-        except OSError:
+        except OSError as exc:
             sock.close()
+            self._errors.append(exc)
             raise
         return sock
+
+
+def _open_multicast(group: str, port: int, hop_limit: int, iface: str, wait_s: float = 3.0):
+    """The group's socket; a port another socket holds is tried again for `wait_s`, then the error says why.
+
+    The default port (python-can's 43113) lies in Linux's ephemeral range (32768-60999), so a short-lived
+    socket of another program can hold it for a moment (a clean-clone test run once failed here with no
+    reason given)."""
+    errors: list[OSError] = []
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return _InterfaceMulticast(group, port, hop_limit, iface, errors)
+        except can.CanInitializationError:
+            busy = bool(errors) and getattr(errors[-1], "errno", None) == errno.EADDRINUSE
+            if not busy or time.monotonic() >= deadline:
+                why = f"{errors[-1]}" if errors else "no reason given"
+                raise can.CanInitializationError(
+                    f"cannot join {group}:{port} on {iface}: {why}") from (errors[-1] if errors else None)
+            time.sleep(0.2)
 
 
 class InterfaceUdpMulticastBus(UdpMulticastBus):
@@ -167,6 +191,6 @@ class InterfaceUdpMulticastBus(UdpMulticastBus):
     def __init__(self, channel: str = DEFAULT_CHANNELS["udp_multicast"], port: int = DEFAULT_UDP_PORT,
                  hop_limit: int = 1, fd: bool = True, iface: str = DEFAULT_IFACE, **kwargs: Any) -> None:
         can.BusABC.__init__(self, channel, **kwargs)
-        self._multicast = _InterfaceMulticast(channel, port, hop_limit, iface)
+        self._multicast = _open_multicast(channel, port, hop_limit, iface)
         self._can_protocol = can.CanProtocol.CAN_FD if fd else can.CanProtocol.CAN_20
 
