@@ -212,6 +212,13 @@ class PlannerSection:
     merge_heading_deg: float = _f(15.0, "the merge into an object's lane ends where the ego's path heads within "
                                         "this of the object's heading (plus one vehicle length); beyond, the object "
                                         "follows the ego", positive=True, high=90.0)
+    slow_yield: bool = _f(True, "give way by slowing down (the highest speed, in steps of 0.25 m/s, at which the object "
+                                "passes first and the PET margin holds) before stopping for it; the object must "
+                                "leave the zone within the horizon")
+    slow_yield_min_speed: float = _f(2.0, "... down to this speed; below it a stop before the zone is the plan, m/s",
+                                     positive=True)
+    slow_yield_horizon_s: float = _f(10.0, "... judged on the objects predicted this far ahead (a slower ego arrives "
+                                           "later than horizon_s looks), s", positive=True)
     escape_speed_max: float = _f(22.222, "ahead of a faster vehicle in its lane (after merging ahead of it, or "
                                          "with one closing from behind) the ego speeds up to its speed, up to "
                                          "this (80 km/h), m/s", positive=True)

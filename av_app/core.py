@@ -280,10 +280,12 @@ class AvCore:
                        lateral=r(p.lateral), target=r(p.target_speed))
             out["conflicts"] = [[c.object_id, None if c.ttc is None else r(c.ttc), None if c.pet is None else r(c.pet),
                                  None if c.station_in is None else r(c.station_in)] for c in p.conflicts]
-            if p.choices:  # commit or yield, per conflicting object: [id, action, why, stop decel, go gap, zone]
+            if p.choices:  # commit or yield, per conflicting object:
+                # [id, action, why, stop decel, go gap, zone, speed cap (slow_yield; else null)]
                 out["choices"] = [[ch.object_id, ch.action, ch.why,
                                    None if not math.isfinite(ch.need_decel) else r(ch.need_decel),
-                                   None if ch.go_gap is None else r(ch.go_gap), r(ch.zone_in)] for ch in p.choices]
+                                   None if ch.go_gap is None else r(ch.go_gap), r(ch.zone_in),
+                                   None if ch.cap is None else r(ch.cap)] for ch in p.choices]
         if self.signals.last:
             out["signal"] = dict(self.signals.last)
         objs = [o for o in self.last_objects if not o.static]

@@ -191,7 +191,7 @@ class CollisionEstimator:
         hi = np.concatenate([mid, tau_ego[-1:]])
         has &= np.isfinite(lo)
         if not has.any():
-            return GoGaps(None, None, None, False)
+            return GoGaps(None, None, None, False, None)
         first = int(np.flatnonzero(has)[0])
         aligned = np.abs(wrap(path.yaw - o.yaw)) <= merge_heading
         aligned[:first] = False
@@ -204,7 +204,8 @@ class CollisionEstimator:
             behind = lo > occ.b  # the object has left the station before the ego gets there
         after = has & ~through
         pick = lambda m: float(gap[m].min()) if m.any() else None  # noqa: E731
-        return GoGaps(pick(through & ~behind), pick(through & behind), pick(after), bool((after & ~behind).any()))
+        return GoGaps(pick(through & ~behind), pick(through & behind), pick(after), bool((after & ~behind).any()),
+                      float(occ.b[through].max()) if through.any() else None)
 
 
 @dataclass(frozen=True)
@@ -215,3 +216,4 @@ class GoGaps:
     behind: float | None  # ... where the object passes first and the ego follows it
     follow: float | None  # beyond the merge, in the object's lane
     leads: bool  # beyond the merge the ego is ahead of the object (which follows it)
+    through_out: float | None  # when the object last occupies a station of the zone or the merge (s from now)

@@ -43,7 +43,7 @@ term on the speed error, the road load fed forward); pure pursuit steers.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -58,6 +58,8 @@ HYSTERESIS_S = 0.5
 GO_HYSTERESIS_S = 0.3  # s of gap a decision to go may lose before it is reconsidered
 PREVIEW_S = 0.5
 STOP_SLACK_M = 0.2
+SLOW_STEP = 0.25  # m/s: the grid of speeds a slow-down yield chooses from
+SLOW_BUFFER_S = 0.2  # s beyond the PET margin a slow-down is chosen for (it is kept while the margin holds)
 ESCAPE_HOLD = 1.0  # m/s: ahead of a follower, the ego keeps its speed up to this much above the follower's
 
 
@@ -74,11 +76,12 @@ class Choice:
     """What to do about one conflicting object (see commit_or_yield)."""
 
     object_id: str
-    action: str  # yield | go | go_unsafe
+    action: str  # yield | slow | go | go_unsafe
     need_decel: float  # the deceleration that stops before the zone (inf: it no longer can)
     go_gap: float | None  # the smallest time gap through the zone and the merge if the ego goes on (None: none)
     zone_in: float  # the zone's first ego station
-    why: str  # comfortable_yield | clear_ahead | merge_ahead | hard_yield | committed_unsafe
+    why: str  # comfortable_yield | slow_yield | clear_ahead | merge_ahead | hard_yield | committed_unsafe
+    cap: float | None = None  # slow_yield: the speed the ego holds to at most, m/s
 
 
 def stop_decel(v0: float, s0: float, zone_in: float, stop_margin: float, grown: float = 0.0) -> float:
@@ -101,11 +104,13 @@ def commit_or_yield(object_id: str, v0: float, s0: float, zone_in: float, go_gap
                     pet_margin: float, merge_gap: float, stop_margin: float, decel_comfort: float,
                     max_decel: float, going: bool = False, follow_gap: float | None = None,
                     follow_need: float = 0.0, behind_gap: float | None = None, grown: float = 0.0,
-                    blocked: float | None = None, stood: bool = False) -> Choice:
+                    blocked: float | None = None, stood: bool = False, slow: float | None = None) -> Choice:
     """Yield (stop before the zone) or go on (clear it), for one object whose PET on the free profile is short.
 
     In this order: a yield the vehicle can make comfortably is taken unless going on clears the object by
-    the full PET margin anyway (or it has already decided to go and going on is still safe); then going on
+    the full PET margin anyway (or it has already decided to go and going on is still safe), and it is a
+    slow-down rather than a stop where one exists (`slow`: the highest speed at which the object passes first
+    and the PET margin holds; a slow-down at that margin also beats a merge at merge_gap or a hard brake); then going on
     where it is safe (gap >= merge_gap through the zone and the merge, and the object, not braking, stays
     `follow_need` s behind the ego speeding up ahead of it: follow_gap); then a yield as hard as the vehicle can brake, while stopping before
     the zone is possible at all. Past that commit point, with going on unsafe too: a stop where braking at the
@@ -123,10 +128,12 @@ def commit_or_yield(object_id: str, v0: float, s0: float, zone_in: float, go_gap
         behind_gap is None or behind_gap >= merge_gap - slack)
     clear = (go_gap is None or go_gap >= pet_margin) and follows and (behind_gap is None or behind_gap >= pet_margin)
     go_gap = go_gap if go_gap is not None else behind_gap  # what the plan log shows
-    if need <= decel_comfort and not clear and not (going and safe_go):
-        return Choice(object_id, "yield", need, go_gap, zone_in, "comfortable_yield")
     if clear:
         return Choice(object_id, "go", need, go_gap, zone_in, "clear_ahead")
+    if slow is not None and not (going and safe_go):
+        return Choice(object_id, "slow", need, go_gap, zone_in, "slow_yield", cap=slow)
+    if need <= decel_comfort and not (going and safe_go):
+        return Choice(object_id, "yield", need, go_gap, zone_in, "comfortable_yield")
     if safe_go:
         return Choice(object_id, "go", need, go_gap, zone_in, "merge_ahead")
     if need <= max_decel:
@@ -154,19 +161,24 @@ class Plan:
 
 
 def profile(path: PathSamples, v0: float, cfg: AvConfig, stops: list[Stop], accel: float | None = None,
-            cruise: float | None = None) -> np.ndarray:
+            cruise: float | None = None, slow_decel: float | None = None) -> np.ndarray:
     """Planned speed at each station of `path` (starting at the ego's station); speeding up at `accel`
-    (default: control.accel_comfort) to `cruise` (default: route.cruise_speed)."""
+    (default: control.accel_comfort) to `cruise` (default: route.cruise_speed), slowing down to it at
+    `slow_decel` (default: control.decel_comfort) when above it."""
     ctl, veh, route = cfg.control, cfg.vehicle, cfg.route
     s = path.s
     with np.errstate(divide="ignore"):
         v_curve = np.sqrt(route.lateral_accel_max / np.maximum(np.abs(path.kappa), 1e-9))
-    lim = np.minimum(route.cruise_speed if cruise is None else cruise, v_curve)
-    # above a speed limit (a cruise speed just lowered: no follower to speed away from any more) the ego
-    # slows at decel_comfort, not at once: an over-speed is not a hazard, a brake in front of a follower is
-    over = v0 * v0 - 2 * ctl.decel_comfort * (s - s[0])
-    lim = np.sqrt(np.maximum(lim * lim, over))
-    v2 = _backward(lim * lim, s, ctl.decel_curve)
+    cap = route.cruise_speed if cruise is None else cruise
+    # above a speed limit (a cruise speed just lowered: no follower to speed away from any more, or a slow-down
+    # to give way) the ego slows at decel_comfort, not at once: an over-speed is not a hazard, a brake in front
+    # of a follower is. The curves' limits are approached at decel_curve (the backward pass); the cruise
+    # limit is flat, so it needs none, and passing it through one would brake for the lowered cruise speed
+    # at decel_curve from where it is first reached, harder than decel_comfort now. (Below the cruise speed
+    # this is the same as one backward pass over min(cruise, curve).)
+    over = v0 * v0 - 2 * (ctl.decel_comfort if slow_decel is None else slow_decel) * (s - s[0])
+    v2 = np.minimum(_backward(np.maximum(v_curve * v_curve, over), s, ctl.decel_curve),
+                    np.maximum(cap * cap, over))
     for stop in stops:
         dist = stop.s - s[0]
         need = v0 * v0 / (2 * dist) if dist > 0.05 else math.inf
@@ -200,11 +212,14 @@ class Planner:
         self.cfg, self.route = cfg, route
         self.lanes = lanes if cfg.planner.lane_prediction else None
         self.estimator = CollisionEstimator(cfg.planner, cfg.vehicle)
+        self.slow_estimator = CollisionEstimator(replace(cfg.planner, horizon_s=cfg.planner.slow_yield_horizon_s),
+                                                 cfg.vehicle)  # the same objects, further ahead
         self.s: float | None = None  # last station (hint for projection)
         self.yielding: set[str] = set()
         self.zones: dict[str, float] = {}  # object id -> its conflict zone's first station, while in conflict
         self.going: set[str] = set()  # objects the ego has decided to go on ahead of (or clear the zone before)
         self.stands: dict[str, float] = {}  # object id -> where the ego stops clear of its way
+        self.caps: dict[str, float] = {}  # object id -> the speed the ego slows to for it (slow_yield)
         self.path_length = max(30.0, cfg.route.cruise_speed * cfg.planner.horizon_s * 1.5 + 10.0)
 
     def plan(self, t: float, pose: tuple[float, float, float], v: float, objects: list[FusedObject],
@@ -225,7 +240,7 @@ class Planner:
         tau_go = None  # the ego's timing if it goes on (computed for the first conflict that needs it)
         ego = self.estimator.ego_boxes(path)
         conflicts, stops, choices = [], list(base_stops), []
-        yielding, going, go_speed, zones, stands = set(), set(), {}, {}, {}
+        yielding, going, go_speed, zones, stands, caps = set(), set(), {}, {}, {}, {}
         for o in objects:
             if self.lanes is not None:
                 o = self.lanes.snap(o)
@@ -239,9 +254,12 @@ class Planner:
                 continue
             c = self.estimator.assess(occ, tau_free, path)
             conflicts.append(c)
-            margin = pl.pet_margin_emergency_s if o.emergency else pl.pet_margin_s
-            if o.id in self.yielding:
-                margin += HYSTERESIS_S
+            # an emergency vehicle is given its wider margin where the ego would be in its way (ahead of it, or
+            # with it); one that passes every station first is not obstructed by the ego behind it
+            base = pl.pet_margin_s
+            if o.emergency and not self._passes_first(occ, tau_free, path):
+                base = pl.pet_margin_emergency_s
+            margin = base + (HYSTERESIS_S if o.id in self.yielding else 0.0)
             if c.pet is None or c.pet >= margin or c.station_in is None:
                 if o.id in self.going and c.pet is not None:
                     going.add(o.id)  # keep the decision while the object still crosses the path
@@ -269,11 +287,15 @@ class Planner:
                 tau_esc = timing(path, profile(path, v0, cfg, base_stops, accel=pl.escape_accel, cruise=cruise))
                 follow = self.estimator.go_gap(occ, tau_esc, path, merge, cfg.vehicle.length).follow
             need_gap = max(pl.merge_gap_s, pl.merge_gap_m / max(o.speed, 1.0))
+            # a slow-down lets the object pass first, so its margin is the one behind an object (above); it is
+            # chosen for the margin itself: the hysteresis is for when to let go of it
+            slow = (self._slow_cap(path, v0, base_stops, o, ego, pl.pet_margin_s, self.caps.get(o.id))
+                    if pl.slow_yield else None)
             ch = commit_or_yield(o.id, v0, s0, zone_in, gaps.ahead, pet_margin=margin, merge_gap=need_gap,
                                  stop_margin=pl.stop_margin_m, decel_comfort=cfg.control.decel_comfort,
                                  max_decel=cfg.vehicle.max_decel, going=o.id in self.going, follow_gap=follow,
                                  follow_need=pl.merge_gap_m / max(o.speed, 1.0), behind_gap=gaps.behind,
-                                 grown=2 * pl.margin_m)
+                                 grown=2 * pl.margin_m, slow=slow)
             if ch.why == "committed_unsafe":
                 # where braking at the limit leaves it (a tenth of a second to react, the controller's slack);
                 # once chosen the point is kept (recomputed each plan it would creep on by that slack)
@@ -298,14 +320,20 @@ class Planner:
             elif ch.action == "yield":
                 stops.append(Stop(zone_in - pl.stop_margin_m, "yield", o.id))
                 yielding.add(o.id)
+            elif ch.action == "slow":
+                caps[o.id] = ch.cap
+                yielding.add(o.id)
             else:
                 going.add(o.id)
-        self.yielding, self.going, self.zones, self.stands = yielding, going, zones, stands
+        self.yielding, self.going, self.zones, self.stands, self.caps = yielding, going, zones, stands, caps
         go = bool(going) and not yielding
         fast = [go_speed.get(k, cfg.route.cruise_speed) for k in going] if go else []
         fast += [min(v, pl.escape_speed_max) for v in escape]
-        v_plan = profile(path, v0, cfg, stops, accel=pl.escape_accel if go or escape else None,
-                         cruise=max([cfg.route.cruise_speed, *fast]))
+        cruise = max([cfg.route.cruise_speed, *fast])
+        if caps:  # giving way by slowing down: the slowest any object needs
+            cruise = min(cruise, *caps.values())
+        v_plan = profile(path, v0, cfg, stops, accel=pl.escape_accel if go or escape else None, cruise=cruise,
+                         slow_decel=cfg.control.decel_stop if caps else None)
         accel, target = self._longitudinal(path, v_plan, v0, [st for st in stops if st.s < s0 + self.path_length],
                                            pl.escape_accel if go or escape else cfg.vehicle.max_accel)
         steer, _ = pure_pursuit(self.route, pose, v0, s0, cfg.vehicle.wheelbase, cfg.control.lookahead_min_m,
@@ -318,6 +346,8 @@ class Planner:
             cause = first.cause
             if accel < -cfg.control.decel_comfort and decision != "route_end":
                 decision = "brake_hard"  # harder than comfortable: it had to
+        elif caps:
+            decision, cause = "slow", min(caps, key=caps.get)  # giving way by slowing down
         elif go:
             unsafe = [ch for ch in choices if ch.why == "committed_unsafe"]
             decision = "go_unsafe" if unsafe else "go"
@@ -330,6 +360,49 @@ class Planner:
             if decision == "cruise":
                 decision = "hold"
         return Plan(t, accel, steer, decision, cause, target, s0, lateral, conflicts, stops, choices)
+
+    def _passes_first(self, occ, tau: np.ndarray, path: PathSamples) -> bool:
+        """Whether, on the ego's timing tau, the object leaves every station of the ego's path it occupies
+        before the ego gets there (the ego neither crosses in front of it nor leads it in its lane)."""
+        g = self.estimator.go_gap(occ, tau, path, math.radians(self.cfg.planner.merge_heading_deg),
+                                  self.cfg.vehicle.length)
+        return g.ahead is None and not g.leads and (g.behind is not None or g.follow is not None)
+
+    def _slow_cap(self, path: PathSamples, v0: float, stops: list[Stop], o: FusedObject, ego, margin: float,
+                  kept: float | None) -> float | None:
+        """The highest speed (a step of the grid from `slow_yield_min_speed` by 0.25 m/s, below the cruise
+        speed) that, held from now on (slowing to it at `decel_stop`, the planned stop's rate), lets the object
+        pass every station first with `margin` + SLOW_BUFFER_S to spare; None where even the lowest does not.
+        The object is predicted over `slow_yield_horizon_s` (a slower ego arrives later than the collision
+        horizon looks) and must leave the zone and the merge within it: beyond it nothing is known. Slower is
+        never worse here (every station is reached later), so the grid is bisected.
+
+        `kept`, the speed chosen at the last plan, is held while it still gives the margin itself and the new
+        choice is less than two steps above it: the buffer is what the vehicle's lag behind its profile and
+        a prediction's noise eat from plan to plan, so the speed does not ratchet down by a step each time."""
+        cfg, pl = self.cfg, self.cfg.planner
+        merge = math.radians(pl.merge_heading_deg)
+        occ = self.slow_estimator.occupancy(o, ego)
+
+        def holds(cap: float, need: float) -> bool:
+            tau = timing(path, profile(path, v0, cfg, stops, cruise=cap, slow_decel=cfg.control.decel_stop))
+            g = self.slow_estimator.go_gap(occ, tau, path, merge, cfg.vehicle.length)
+            if g.ahead is not None or g.through_out is None or g.through_out > pl.slow_yield_horizon_s - pl.dt_s / 2:
+                return False
+            pet = self.slow_estimator.assess(occ, tau, path).pet
+            return pet is not None and pet >= need
+
+        best = None
+        grid = np.arange(pl.slow_yield_min_speed, cfg.route.cruise_speed - 1e-9, SLOW_STEP)
+        if len(grid) and holds(float(grid[0]), margin + SLOW_BUFFER_S):
+            lo, hi = 0, len(grid)  # grid[lo] holds; grid[hi] (if any) does not
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                lo, hi = (mid, hi) if holds(float(grid[mid]), margin + SLOW_BUFFER_S) else (lo, mid)
+            best = float(grid[lo])
+        if kept is not None and (best is None or best < kept + 2 * SLOW_STEP) and holds(kept, margin):
+            return kept
+        return best
 
     def _longitudinal(self, path: PathSamples, v_plan: np.ndarray, v0: float, stops: list[Stop],
                       a_max: float) -> tuple[float, float]:

@@ -58,6 +58,22 @@ def test_following_an_object_that_has_passed_needs_the_pet_margin_to_be_clear():
     assert commit_or_yield("ev", V0, s, ZONE, None, behind_gap=0.8, **KW).why == "hard_yield"
 
 
+def test_a_slow_down_that_keeps_the_pet_margin_is_taken_before_any_stop_or_merge():
+    """Where slowing to some speed lets the object pass first with the PET margin (the planner's `slow`),
+    that is the give-way: before a comfortable stop, a merge at merge_gap and a hard brake; but not when going
+    on clears the object by the margin anyway, nor against a decision to go that is still safe."""
+    for s, gap in ((station_for(COMFORT) - 1.0, 1.5), (station_for(COMFORT) + 0.05, 1.2),
+                   (station_for(COMFORT) + 0.05, 0.8)):
+        ch = commit_or_yield("ev", V0, s, ZONE, gap, slow=3.5, **KW)
+        assert (ch.action, ch.why, ch.cap) == ("slow", "slow_yield", 3.5)
+    assert commit_or_yield("ev", V0, station_for(COMFORT) - 1.0, ZONE, 3.2, slow=3.5, **KW).why == "clear_ahead"
+    assert commit_or_yield("ev", V0, station_for(COMFORT) - 1.0, ZONE, 1.5, slow=3.5, going=True,
+                           **KW).why == "merge_ahead"
+    # without one, the stops of before
+    assert commit_or_yield("ev", V0, station_for(COMFORT) - 1.0, ZONE, 1.5, **KW).why == "comfortable_yield"
+    assert commit_or_yield("ev", V0, station_for(COMFORT) + 0.05, ZONE, 0.8, **KW).why == "hard_yield"
+
+
 def test_just_past_the_comfortable_commit_point_a_safe_merge_beats_a_hard_brake():
     s = station_for(COMFORT) + 0.05
     ch = commit_or_yield("ev", V0, s, ZONE, 1.2, **KW)  # the ev 1.2 s behind through the merge: enough

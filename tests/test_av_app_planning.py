@@ -160,7 +160,8 @@ def crossing(x0, speed=16.667, emergency=False):
 
 
 def test_planner_stops_before_the_zone_for_a_vehicle_crossing_at_60_kmh():
-    cfg = config(route={"waypoints": [[0.0, -200.0], [0.0, 200.0]]})
+    # the stop itself: a slow-down yield (the next test) would let this vehicle pass without one
+    cfg = config(route={"waypoints": [[0.0, -200.0], [0.0, 200.0]]}, planner={"slow_yield": False})
     route = Route(cfg.route.waypoints, 6.0)
     v, m = cfg.vehicle, cfg.planner.margin_m
     off = v.length / 2 - v.rear_overhang
@@ -182,6 +183,47 @@ def test_planner_stops_before_the_zone_for_a_vehicle_crossing_at_60_kmh():
     decel = -min(a for *_, a, d in log)
     assert decel <= cfg.control.decel_comfort + 0.3  # comfortable: the conflict was known 5 s ahead
     assert log[-1][2] > 5.0 and log[-1][4] > 3.0  # past the crossing, going again
+
+
+def test_planner_gives_way_by_slowing_down_where_that_keeps_the_pet_margin():
+    """The same crossing, known 5 s ahead: slowing to a speed at which the vehicle passes first with the PET
+    margin to spare is enough; the ego never stops, never enters the lane while the vehicle is there, and
+    passes behind it with at least the margin (checked here on the closed loop's own trajectories)."""
+    cfg = config(route={"waypoints": [[0.0, -200.0], [0.0, 200.0]]})
+    route = Route(cfg.route.waypoints, 6.0)
+    v, m = cfg.vehicle, cfg.planner.margin_m
+    off = v.length / 2 - v.rear_overhang
+    start = (0.0, -5.0 * 8.333 - off, math.pi / 2, 8.333)
+    x0 = -5.0 * 16.667
+    plan = Planner(cfg, route).plan(0.0, start[:3], start[3], crossing(x0)(0.0))
+    assert plan.decision == "slow" and plan.cause == "x" and not plan.stops
+    (ch,) = plan.choices
+    assert ch.why == "slow_yield" and cfg.planner.slow_yield_min_speed <= ch.cap < 8.333
+    log = drive(cfg, route, start, crossing(x0), 10.0)
+    assert min(vv for *_, vv, _, _ in log) >= cfg.planner.slow_yield_min_speed - 0.3  # slowed, never stopped
+    assert -min(a for *_, a, _ in log) <= cfg.control.decel_comfort + 0.3
+    # PET at the crossing square (the lane's 1.8 m x the ego's 1.8 m): the vehicle's tail leaves it at
+    # (x_tail = +0.9), the ego's nose enters it (y_front = -0.9) at least pet_margin_s later
+    leave = (0.9 + 2.25 - x0) / 16.667
+    enter = next(t for t, x, y, yaw, *_ in log if y + math.sin(yaw) * (v.length - v.rear_overhang) >= -0.9)
+    assert enter - leave >= cfg.planner.pet_margin_s
+    assert log[-1][2] > 5.0 and log[-1][4] > 3.0  # past the crossing, going again
+
+
+def test_no_slow_down_yield_for_a_vehicle_still_in_the_zone_at_the_horizons_end():
+    """A vehicle crawling across (0.6 m/s: it needs about 13 s to clear the ego's path; a slow-down is judged
+    over planner.slow_yield_horizon_s, 10 s): what it does after that is unknown, so no speed can be shown to
+    let it pass; the ego stops."""
+    cfg = config(route={"waypoints": [[0.0, -200.0], [0.0, 200.0]]})
+    route = Route(cfg.route.waypoints, 6.0)
+    off = cfg.vehicle.length / 2 - cfg.vehicle.rear_overhang
+    start = (0.0, -40.0 - off, math.pi / 2)
+    crawl = [obj("x", -4.0, 0.0, 0.0, 0.6)]
+    plan = Planner(cfg, route).plan(0.0, start, 8.333, crawl)
+    assert plan.decision == "yield" and [ch.why for ch in plan.choices] == ["comfortable_yield"]
+    # the same vehicle at 2 m/s leaves in time (about 4 s): a slow-down lets it pass
+    plan = Planner(cfg, route).plan(0.0, start, 8.333, [obj("x", -4.0, 0.0, 0.0, 2.0)])
+    assert plan.decision == "slow" and [ch.why for ch in plan.choices] == ["slow_yield"], plan.choices
 
 
 def test_planner_does_not_brake_for_a_vehicle_that_clears_the_zone_in_time():

@@ -7,6 +7,8 @@ arms and a route that goes on east (so that a cav that merges ahead has road to 
   before issue 38 it braked at 8 m/s^2 and stood in the lane until the ev hit it. Now it goes on, merges
   ahead, and the ev (holding 60 km/h, not braking) never reaches it.
 * ev 0.5 s early (x0 = -108 m; without the RSU a collision): the cav yields before the ev's lane.
+* ev 1.5 s early (x0 = -91 m): the ev passes first; the cav gives way by slowing down just enough (never
+  below 80 % of its turn speed) and passes behind it with the emergency PET margin.
 * no ev (parked 216 m out, beyond the RSU's and the lidar's view): the cav takes its turn at its turn speed.
 * ev 4 s late (x0 = -183 m): no conflict at the junction; the cav neither stops nor brakes hard in front of
   the ev closing from behind in its lane (it did: 8 m/s^2 to 0.5 m/s, hit from behind), and speeds up.
@@ -104,7 +106,7 @@ def runs(tmp_path_factory, fmu_dir):
     study = copy_study(tmp_path_factory.mktemp("ima-timing"))
     out = tmp_path_factory.mktemp("ima-timing-runs")
     jobs = {"late": ("late", 1.44, 10.0), "early": ("early", -0.5, 9.0), "very_late": ("very_late", 4.0, 12.0),
-            "no_ev": ("no_ev", 6.0, 8.0, True)}
+            "no_ev": ("no_ev", 6.0, 8.0, True), "very_early": ("very_early", -1.5, 9.0)}
     return run_pairwise(lambda job: run_timing(study, job[0], out, *job[1:]), jobs)
 
 
@@ -130,11 +132,26 @@ def test_an_early_ev_the_cav_yields_before_its_lane(runs):
     assert run["metrics"]["collision"] is False
     rows = run["rows"]
     decisions = {p["decision"] for p in run["plans"]}
-    assert decisions & {"yield", "brake_hard"}
+    assert decisions & {"yield", "slow", "brake_hard"}
     # while the ev crosses the cav's path (its body within 6 m of x = 1.75), the cav is out of its lane
     crossing = [r for r in rows if abs(r["ev.x"] - 1.75) < 6.0]
     assert crossing and max(footprint_y(r)[1] for r in crossing) < LANE_Y[0]
     assert min(r["cav.a"] for r in rows) > -4.5  # the ev was reported about 3 s before the zone
+
+
+def test_a_very_early_ev_the_cav_slows_only_as_much_as_giving_way_needs(runs):
+    run = runs["very_early"]
+    assert run["metrics"]["collision"] is False
+    rows = run["rows"]
+    turning = [r for r in rows if r["cav.y"] > -15.0]
+    assert turning and min(r["cav.v"] for r in turning) >= 0.8 * TURN_SPEED  # no stop, no crawl
+    assert min(r["cav.a"] for r in rows) > -3.0 - 0.3  # a comfortable slow-down
+    whys = {ch[2] for p in run["plans"] for ch in p.get("choices", [])}
+    assert "slow_yield" in whys and not {p["decision"] for p in run["plans"]} & {"brake_hard", "go", "go_unsafe"}
+    # it passes behind the ev: its footprint enters the ev's lane only after the ev's tail has passed x = 1.75
+    # plus the cav's half width (the ev is 4.8 m long, its centre reported: x = front - 2.4)
+    first_in = next(r for r in rows if in_lane(r))
+    assert first_in["ev.x"] - 2.4 - 1.75 > 0.9
 
 
 def test_a_very_late_ev_no_phantom_brake_and_the_cav_speeds_up_ahead_of_it(runs):
