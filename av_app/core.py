@@ -251,7 +251,7 @@ class AvCore:
         wall_can = time.perf_counter() - w1
         t_can = self.clock.charge("can_command", t_plan, wall_can)
         self.health.counts["commands"] += 1
-        if accel < -0.5 and plan is not None and plan.decision in ("yield", "brake_hard", "stop_red"):
+        if accel < -0.5 and plan is not None and plan.decision in ("yield", "slow", "brake_hard", "stop_red"):
             self.health.mark("first_brake", t)
         if plan is not None and plan.decision in ("go", "go_unsafe"):
             self.health.mark("first_go", t)  # went on through a conflict zone instead of yielding

@@ -117,12 +117,17 @@ def test_the_fixed_policy_repeats_bit_for_bit(runs):
     assert first["metrics_bytes"] == again["metrics_bytes"]
 
 
+# the AV app's decisions that react to a conflicting object: give way (by stopping or by slowing down), brake
+# hard, or - past its commit point, issue 38 - go on to clear the ev's lane
+REACTIONS = ("yield", "slow", "brake_hard", "go", "go_unsafe")
+
+
 def test_the_connected_vehicle_reacted_earlier_with_the_rsu(runs):
     """The RSU's BSMs reach the vehicle before its lidar sees the emergency vehicle round the building:
     the AV app's plan log (one record per plan) shows its first reaction to it (a yield, or - past its commit
     point, issue 38 - going on to clear the ev's lane) well before it does without them."""
     def first_reaction(run) -> float:
-        return next(p["t"] for p in run["plans"] if p.get("decision") in ("yield", "brake_hard", "go", "go_unsafe"))
+        return next(p["t"] for p in run["plans"] if p.get("decision") in REACTIONS)
 
     assert first_reaction(runs[(True, "fixed")]) < first_reaction(runs[(False, "fixed")]) - 0.5
 
@@ -139,10 +144,10 @@ def test_with_sdsm_in_place_of_surrogate_bsms_the_verdict_is_the_same(runs):
         assert m["latency_ms"][stage]["n"] > 10, stage
     ids = {o[0] for p in run["plans"] for o in p.get("objects", [])}
     assert any(i.startswith("sdsm:") for i in ids) and not any(i.startswith("v2x:") for i in ids)
-    reactions = [p for p in run["plans"] if p.get("decision") in ("yield", "brake_hard", "go", "go_unsafe")]
+    reactions = [p for p in run["plans"] if p.get("decision") in REACTIONS]
     assert reactions[0]["cause"].startswith("sdsm:")  # it reacted to the RSU's report of the ev
     assert reactions[0]["t"] < next(p["t"] for p in runs[(False, "fixed")]["plans"]
-                                    if p.get("decision") in ("yield", "brake_hard", "go", "go_unsafe")) - 0.5
+                                    if p.get("decision") in REACTIONS) - 0.5
 
 
 def test_the_report_of_the_run_shows_every_plot_and_a_clip_of_every_camera_frame(runs):

@@ -83,12 +83,23 @@ command = ["{{python}}", "-m", "av_app", "--config", "apps/av.toml", "--can-port
             "plans": [json.loads(line) for line in (run / "plan-cav.jsonl").read_text().splitlines()]}
 
 
+def corners(r: dict) -> list[tuple[float, float]]:
+    """The cav's footprint corners (x, y) at a time series row."""
+    c, s = math.cos(r["cav.yaw"]), math.sin(r["cav.yaw"])
+    return [(r["cav.x"] + u * c - v * s, r["cav.y"] + u * s + v * c)
+            for u in (-CAV["rear_overhang"], CAV["length"] - CAV["rear_overhang"])
+            for v in (-CAV["width"] / 2, CAV["width"] / 2)]
+
+
 def footprint_y(r: dict) -> tuple[float, float]:
     """(min, max) y of the cav's footprint corners at a time series row."""
-    c, s = math.cos(r["cav.yaw"]), math.sin(r["cav.yaw"])
-    ys = [r["cav.y"] + u * s + v * c for u in (-CAV["rear_overhang"], CAV["length"] - CAV["rear_overhang"])
-          for v in (-CAV["width"] / 2, CAV["width"] / 2)]
+    ys = [y for _, y in corners(r)]
     return min(ys), max(ys)
+
+
+def footprint_x(r: dict) -> tuple[float, float]:
+    xs = [x for x, _ in corners(r)]
+    return min(xs), max(xs)
 
 
 def in_lane(r: dict) -> bool:
@@ -148,10 +159,11 @@ def test_a_very_early_ev_the_cav_slows_only_as_much_as_giving_way_needs(runs):
     assert min(r["cav.a"] for r in rows) > -3.0 - 0.3  # a comfortable slow-down
     whys = {ch[2] for p in run["plans"] for ch in p.get("choices", [])}
     assert "slow_yield" in whys and not {p["decision"] for p in run["plans"]} & {"brake_hard", "go", "go_unsafe"}
-    # it passes behind the ev: its footprint enters the ev's lane only after the ev's tail has passed x = 1.75
-    # plus the cav's half width (the ev is 4.8 m long, its centre reported: x = front - 2.4)
+    # it passes behind the ev with the ordinary PET margin (1.5 s, av.toml's pet_margin_s): when its footprint
+    # first enters the ev's lane, the ev's tail (rear axle - 1.42 m, ima_world.toml) is that far ahead of it
     first_in = next(r for r in rows if in_lane(r))
-    assert first_in["ev.x"] - 2.4 - 1.75 > 0.9
+    ahead = first_in["ev.x"] - 1.42 - max(footprint_x(first_in))
+    assert ahead / first_in["ev.v"] >= 1.5, (first_in["time"], ahead)
 
 
 def test_a_very_late_ev_no_phantom_brake_and_the_cav_speeds_up_ahead_of_it(runs):
