@@ -76,3 +76,18 @@ def test_post_encroachment_time_of_a_vehicle_that_waits():
     a_in = t_go + (-0.9 - 3.55 + 8.0) / 10
     assert check.metrics()["pet_s"] == pytest.approx(a_in - b_out, abs=0.021)
     assert check.metrics()["min_gap_m"] > 0
+
+
+def test_post_encroachment_time_of_a_vehicle_following_another_is_its_time_gap():
+    """Same lane, same way, 15.5 m from the leader's rear bumper to the follower's front at 10 m/s: every point
+    of the lane the two share is left by the leader 1.55 s before the follower reaches it. Judged over the
+    shared stretch as one zone (leader out of its far end, follower into its near end) it read as both in
+    the zone at once."""
+    a = lambda t: (-20.0 + 10 * t, 0.0, 0.0, 10.0)  # leader: rear bumper at rear axle - 0.95
+    b = lambda t: (-40.0 + 10 * t, 0.0, 0.0, 10.0)  # follower: front bumper at rear axle + 3.55
+    check = CollisionCheck({"a": CAR, "b": CAR})
+    assert drive(check, {"a": a, "b": b}, 6.0) == []
+    gap_m = (-20.0 - 0.95) - (-40.0 + 3.55)
+    assert check.metrics()["pet_s"] == pytest.approx(gap_m / 10.0, abs=0.021)
+    assert check.metrics()["min_gap_m"] == pytest.approx(gap_m)
+

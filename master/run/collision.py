@@ -17,10 +17,17 @@ measured, when:
   evaluated every `ttc_every_s` of simulated time). Straight-line projection
   is the usual definition; for a turning vehicle it is an approximation.
 * **PET** (post-encroachment time): the conflict zone of a pair is where the
-  areas the two footprints swept during the run overlap; PET is the time from
-  the moment the first vehicle to enter the zone has left it to the moment the
-  second one enters it. Negative: both were in the zone at once. None: the
-  paths never crossed, or the second vehicle never entered the zone.
+  areas the two footprints swept during the run overlap. PET is defined at a
+  point: the time from the first vehicle leaving it to the second reaching it;
+  the pair's PET is the smallest over the zone's points (a grid of
+  `pet_grid_m`, and the zone's corners). Negative: both covered one point at
+  once (-how long). None: the paths never crossed, or the second vehicle
+  never reached the zone. For two paths that cross this is the zone-level PET
+  (first out of the zone to second into it) up to the grid; for a vehicle that
+  merges behind another into its lane, where the zone is the whole shared
+  stretch of lane, it is the follower's time gap at the point it is smallest,
+  not the time from the leader's leaving the far end of the stretch (which
+  read as both in the zone at once for a car 8 m behind a leader pulling away).
 
 `CollisionCheck` is the pure core (feed it poses, read its metrics); the
 master's observer hook feeds it every step.
@@ -89,6 +96,7 @@ class CollisionCheck:
     ttc_horizon_s: float = 10.0
     ttc_resolution_s: float = 0.05
     ttc_every_s: float = 0.1
+    pet_grid_m: float = 0.2
     _pairs: list[_Pair] = field(default_factory=list, init=False)
     _track: dict[str, list[tuple[float, float, float, float]]] = field(default_factory=dict, init=False)
     _next_ttc: float = field(default=-math.inf, init=False)
@@ -148,15 +156,34 @@ class CollisionCheck:
         zone = self._swept(a).intersection(self._swept(b))
         if zone.is_empty or zone.area < 1e-6:
             return None
-        occupancy = {}
-        for name in (a, b):
-            times = [t for t, x, y, yaw in self._track[name]
-                     if self.bodies[name].footprint(x, y, yaw).intersects(zone)]
-            if not times:
-                return None
-            occupancy[name] = (times[0], times[-1])
-        (first_in, first_out), (second_in, _) = sorted(occupancy.values())
-        return second_in - first_out
+        points = _zone_points(zone, self.pet_grid_m)
+        (a_in, a_out), (b_in, b_out) = (self._cover_times(n, points) for n in (a, b))
+        both = np.isfinite(a_in) & np.isfinite(b_in)  # a point a footprint only grazed between samples drops out
+        if not both.any():
+            return None
+        a_in, a_out, b_in, b_out = a_in[both], a_out[both], b_in[both], b_out[both]
+        gap = np.where(a_in <= b_in, b_in - a_out, a_in - b_out)
+        return float(gap.min())
+
+    def _cover_times(self, name: str, points: np.ndarray, chunk: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+        """When the body's footprint first and last covered each point (inf / -inf: never)."""
+        body = self.bodies[name]
+        track = np.asarray(self._track[name], dtype=float)  # (n, 4): t, x, y, yaw
+        t, x, y, yaw = track.T
+        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        centre = (body.length / 2 - body.rear_overhang)
+        first = np.full(len(points), np.inf)
+        last = np.full(len(points), -np.inf)
+        for k in range(0, len(points), chunk):
+            px, py = points[k:k + chunk, 0][None, :], points[k:k + chunk, 1][None, :]
+            dx, dy = px - x[:, None], py - y[:, None]
+            u = dx * c + dy * s - centre  # along the body from its centre
+            v = -dx * s + dy * c
+            inside = (np.abs(u) <= body.length / 2 + 1e-9) & (np.abs(v) <= body.width / 2 + 1e-9)  # (n, m)
+            hit = inside.any(axis=0)
+            first[k:k + chunk][hit] = t[inside.argmax(axis=0)[hit]]
+            last[k:k + chunk][hit] = t[len(t) - 1 - inside[::-1].argmax(axis=0)[hit]]
+        return first, last
 
     def _swept(self, name: str):
         body = self.bodies[name]
@@ -187,6 +214,17 @@ class CollisionCheck:
             "pet_s": min(pets) if pets else None,  # the most critical pair (negative: shared the zone)
             "pairs": pairs,
         }
+
+
+def _zone_points(zone, spacing: float) -> np.ndarray:
+    """Points of the zone to judge PET at: a grid of `spacing` inside it, and the corners of its outline
+    (a zone thinner than the grid still has its corners)."""
+    x0, y0, x1, y1 = zone.bounds
+    gx, gy = np.meshgrid(np.arange(x0, x1 + spacing / 2, spacing), np.arange(y0, y1 + spacing / 2, spacing))
+    gx, gy = gx.ravel(), gy.ravel()
+    keep = shapely.intersects_xy(zone, gx, gy)
+    corners = shapely.get_coordinates(shapely.get_exterior_ring(shapely.get_parts(zone)))
+    return np.concatenate([np.column_stack([gx[keep], gy[keep]]), corners])
 
 
 def _relative_speed(pa, pb) -> float:
