@@ -104,8 +104,7 @@ def commit_or_yield(object_id: str, v0: float, s0: float, zone_in: float, go_gap
                     pet_margin: float, merge_gap: float, stop_margin: float, decel_comfort: float,
                     max_decel: float, going: bool = False, follow_gap: float | None = None,
                     follow_need: float = 0.0, behind_gap: float | None = None, grown: float = 0.0,
-                    blocked: float | None = None, stood: bool = False, slow: float | None = None,
-                    yielding: bool = False) -> Choice:
+                    blocked: float | None = None, stood: bool = False, slow: float | None = None) -> Choice:
     """Yield (stop before the zone) or go on (clear it), for one object whose PET on the free profile is short.
 
     In this order: a yield the vehicle can make comfortably is taken unless going on clears the object by
@@ -121,14 +120,6 @@ def commit_or_yield(object_id: str, v0: float, s0: float, zone_in: float, go_gap
     (measured: the case study without the RSU, standing 16.7 m/s, going on 9.2 m/s).
     """
     need = stop_decel(v0, s0, zone_in, stop_margin, grown)
-    if yielding and need > decel_comfort:
-        # a stop under way that slipped toward its point (the vehicle lags its brake command) is finished within
-        # the margins rather than given up: standing up to `grown` into the zone is still clear of the lane, and
-        # setting off from walking pace in front of the object is worse (measured, 25 mph 2.5 s late: the cav
-        # 0.3 m before its stop point at 1.4 m/s took itself for committed and merged 1.2 s ahead of the ev)
-        room = zone_in + grown - s0 - STOP_SLACK_M
-        if room > 0.05 and v0 * v0 / (2 * room) <= decel_comfort:
-            need = v0 * v0 / (2 * room)
     slack = GO_HYSTERESIS_S if going else 0.0  # a decision to go is not undone by a gap a plan's noise shorter
     follows = follow_gap is None or follow_gap >= follow_need - slack
     # behind an object that has passed (behind_gap) merge_gap makes going on safe, but only the PET margin
@@ -304,7 +295,7 @@ class Planner:
                                  stop_margin=pl.stop_margin_m, decel_comfort=cfg.control.decel_comfort,
                                  max_decel=cfg.vehicle.max_decel, going=o.id in self.going, follow_gap=follow,
                                  follow_need=pl.merge_gap_m / max(o.speed, 1.0), behind_gap=gaps.behind,
-                                 grown=2 * pl.margin_m, slow=slow, yielding=o.id in self.yielding)
+                                 grown=2 * pl.margin_m, slow=slow)
             if ch.why == "committed_unsafe":
                 # where braking at the limit leaves it (a tenth of a second to react, the controller's slack);
                 # once chosen the point is kept (recomputed each plan it would creep on by that slack)
@@ -319,7 +310,7 @@ class Planner:
                                      max_decel=cfg.vehicle.max_decel, going=o.id in self.going,
                                      follow_gap=follow, follow_need=pl.merge_gap_m / max(o.speed, 1.0),
                                      behind_gap=gaps.behind, grown=2 * pl.margin_m, blocked=blocked,
-                                     stood=o.id in self.stands, yielding=o.id in self.yielding)
+                                     stood=o.id in self.stands)
             go_speed[o.id] = cruise if leads else cfg.route.cruise_speed
             choices.append(ch)
             if ch.why == "stop_clear_of_path":
@@ -327,10 +318,7 @@ class Planner:
                 stands[o.id] = s_stand
                 yielding.add(o.id)
             elif ch.action == "yield":
-                at = zone_in - pl.stop_margin_m
-                if ch.need_decel < stop_decel(v0, s0, zone_in, pl.stop_margin_m, 2 * pl.margin_m) - 1e-9:
-                    at = zone_in + 2 * pl.margin_m - STOP_SLACK_M  # a slipped stop, finished within the margins
-                stops.append(Stop(at, "yield", o.id, past=STOP_SLACK_M if at > zone_in else None))
+                stops.append(Stop(zone_in - pl.stop_margin_m, "yield", o.id))
                 yielding.add(o.id)
             elif ch.action == "slow":
                 caps[o.id] = ch.cap

@@ -74,22 +74,6 @@ def test_a_slow_down_that_keeps_the_pet_margin_is_taken_before_any_stop_or_merge
     assert commit_or_yield("ev", V0, station_for(COMFORT) + 0.05, ZONE, 0.8, **KW).why == "hard_yield"
 
 
-def test_a_stop_under_way_that_slipped_toward_its_point_is_finished_within_the_margins():
-    """Yielding, 0.3 m before the stop point at 1.4 m/s (the vehicle lags its brake command): stopping at the
-    point needs 3.3 m/s^2, more than comfortable, and a merge 1.2 s ahead of the ev is "safe"; but standing up
-    to `grown` into the zone is still clear of the lane, so the yield is finished there (0.5 m/s^2), not given
-    up. A plan that was not yielding is judged as before."""
-    s, v = ZONE - MARGIN - 0.3, 1.4
-    assert stop_decel(v, s, ZONE, MARGIN, grown=0.8) == pytest.approx(v * v / 0.6)
-    ch = commit_or_yield("ev", v, s, ZONE, 1.2, grown=0.8, yielding=True, **KW)
-    assert (ch.action, ch.why) == ("yield", "comfortable_yield")
-    assert ch.need_decel == pytest.approx(v * v / (2 * (MARGIN + 0.3 + 0.8 - STOP_SLACK_M)))
-    assert commit_or_yield("ev", v, s, ZONE, 1.2, grown=0.8, **KW).why == "merge_ahead"
-    # at speed the margins do not make a hard stop comfortable: that is still a choice between the two
-    s, v = ZONE - MARGIN - 2.0, 5.0
-    assert commit_or_yield("ev", v, s, ZONE, 1.2, grown=0.8, yielding=True, **KW).why == "merge_ahead"
-
-
 def test_just_past_the_comfortable_commit_point_a_safe_merge_beats_a_hard_brake():
     s = station_for(COMFORT) + 0.05
     ch = commit_or_yield("ev", V0, s, ZONE, 1.2, **KW)  # the ev 1.2 s behind through the merge: enough
