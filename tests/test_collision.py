@@ -91,3 +91,20 @@ def test_post_encroachment_time_of_a_vehicle_following_another_is_its_time_gap()
     assert check.metrics()["pet_s"] == pytest.approx(gap_m / 10.0, abs=0.021)
     assert check.metrics()["min_gap_m"] == pytest.approx(gap_m)
 
+
+
+
+def test_a_pair_that_touched_has_a_post_encroachment_time_of_at_most_zero():
+    """b's corner comes down on a's side at 45 degrees and touches it at the last sample (a run that stops at
+    first contact, as the case study's does): the swept areas meet in a point, a zone of no area, yet both
+    covered that point at once."""
+    a_pose = (0.0, 0.0, 0.0, 0.0)  # standing: x in [-0.95, 3.55], y in [-0.9, 0.9]
+    yaw = -3 * math.pi / 4
+    corner = CAR.corners(0.0, 0.0, yaw)
+    low = corner[np.argmin(corner[:, 1])]  # b's lowest corner, relative to its rear axle
+    end = (1.0 - low[0], 0.9 - 1e-9 - low[1])  # rear axle where that corner just meets a's side at x = 1.0
+    b = lambda t: (end[0] - 5.0 * (1.0 - t) * math.cos(yaw), end[1] - 5.0 * (1.0 - t) * math.sin(yaw), yaw, 5.0)
+    check = CollisionCheck({"a": CAR, "b": CAR})
+    contacts = drive(check, {"a": lambda t: a_pose, "b": b}, 1.0)
+    assert [c.t for c in contacts] == [pytest.approx(1.0)]
+    assert check.metrics()["pet_s"] is not None and check.metrics()["pet_s"] <= 0.0

@@ -152,7 +152,16 @@ class CollisionCheck:
         return sorted((p.contact for p in self._pairs if p.contact is not None), key=lambda c: c.t)
 
     def pet(self, a: str, b: str) -> float | None:
-        """Post-encroachment time of the pair over what was fed so far (see the module docstring)."""
+        """Post-encroachment time of the pair over what was fed so far (see the module docstring). A pair that
+        touched covered its contact point at once: at most 0, even where the footprints only met edge to edge or
+        corner to side (a zone of no area, or one no grid point lies in)."""
+        touched = any(p.contact is not None for p in self._pairs if {p.a, p.b} == {a, b})
+        pet = self._pet(a, b)
+        if not touched:
+            return pet
+        return 0.0 if pet is None else min(pet, 0.0)
+
+    def _pet(self, a: str, b: str) -> float | None:
         zone = self._swept(a).intersection(self._swept(b))
         if zone.is_empty or zone.area < 1e-6:
             return None
