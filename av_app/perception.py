@@ -36,7 +36,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from av_app.config import PerceptionSection
-from av_app.geometry import min_area_rect, wrap
+from av_app.geometry import min_area_rect, to_frame, wrap
 
 
 @dataclass(frozen=True)
@@ -224,7 +224,7 @@ class LidarTracker:
             rows, cols = linear_sum_assignment(np.where(cost <= gate, cost, big))
             pairs = [(r, c) for r, c in zip(rows, cols) if cost[r, c] <= gate[r, 0]]
         used_t, used_c = {r for r, _ in pairs}, {c for _, c in pairs}
-        used_c |= self._fragments(pairs, moving)
+        used_c |= self._fragments(pairs, moving, used_c)
         for r, c in pairs:
             self.tracks[r].update(moving[c])
         for i, tr in enumerate(self.tracks):
@@ -240,7 +240,7 @@ class LidarTracker:
                                         1, 0.1) for i, c in enumerate(static)]
         return self.objects()
 
-    def _fragments(self, pairs, moving: list[Cluster]) -> set[int]:
+    def _fragments(self, pairs, moving: list[Cluster], taken: set[int]) -> set[int]:
         """The unmatched clusters that are pieces of a vehicle whose other piece a track took this scan.
 
         An occluder between the lidar and a passing vehicle splits it in clusters; the track takes the
@@ -252,22 +252,19 @@ class LidarTracker:
         another vehicle cannot be inside this one."""
         if not pairs or not self.cfg.fragments:
             return set()
-        taken = {c for _, c in pairs}
+        free = [c for c in range(len(moving)) if c not in taken]
+        if not free:
+            return set()
         margin = self.cfg.fragment_margin_m
-        out = set()
-        for c, cl in enumerate(moving):
-            if c in taken:
-                continue
-            for r, _ in pairs:
-                tr = self.tracks[r]
-                x, y, vx, vy = (float(v) for v in tr.kf.x)
-                yaw = math.atan2(vy, vx) if math.hypot(vx, vy) > 1.0 else tr.box.yaw
-                dx, dy = cl.x - x, cl.y - y
-                along = dx * math.cos(yaw) + dy * math.sin(yaw)
-                across = -dx * math.sin(yaw) + dy * math.cos(yaw)
-                if abs(along) <= tr.extent[0] / 2 + margin and abs(across) <= tr.extent[1] / 2 + margin:
-                    out.add(c)
-                    break
+        xs, ys = np.array([moving[c].x for c in free]), np.array([moving[c].y for c in free])
+        piece = np.zeros(len(free), dtype=bool)
+        for r, _ in pairs:
+            tr = self.tracks[r]
+            x, y, vx, vy = (float(v) for v in tr.kf.x)
+            yaw = math.atan2(vy, vx) if math.hypot(vx, vy) > 1.0 else tr.box.yaw
+            along, across = to_frame(xs, ys, (x, y, yaw))
+            piece |= (np.abs(along) <= tr.extent[0] / 2 + margin) & (np.abs(across) <= tr.extent[1] / 2 + margin)
+        out = {c for c, p in zip(free, piece) if p}
         self.fragments += len(out)
         return out
 
