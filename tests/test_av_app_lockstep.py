@@ -289,7 +289,7 @@ def test_fed_nothing_the_lidar_sees_the_ev_past_the_commit_point_and_the_cav_goe
     plans = [json.loads(line) for line in (run.folder.parent / "plan.jsonl").read_text().splitlines()]
     first = next(p for p in plans if p["t"] >= first_go - 1e-9)
     assert first["decision"] == "go_unsafe"
-    (_, action, why, need, _, _), = [ch for ch in first["choices"] if ch[0] == first["cause"]]
+    (_, action, why, need, *_), = [ch for ch in first["choices"] if ch[0] == first["cause"]]
     assert (action, why) == ("go", "committed_unsafe") and (need is None or need > 8.0)  # past the commit point
     hit = run.collision()
     assert hit["collision"]
@@ -349,9 +349,12 @@ def test_bad_input_on_every_channel_is_counted_not_fatal(attacks):
 
 
 def test_the_same_ghost_validly_signed_makes_the_cav_yield(ghost):
-    """Positive control for the attack run: the ghost's frames, had they verified, would have stopped it."""
+    """Positive control for the attack run: the ghost's frames, had they verified, would have made it give way
+    (by stopping, or - issue 38 - by slowing down to let the ghost pass first). It stopped before issue 38's
+    slow-down yield; now it slows from 8.3 m/s to under 5 (measured 3.75) before it reaches its turn, where the
+    refused run only ever cruises."""
     av = ghost.av
     assert av["obu"]["rejected"] == {} and av["obu"]["accepted"]["bsm"] >= 60
-    assert "yield" in av["decisions"]
-    assert ghost.col("cav.v").min() < 2.0
+    assert {"yield", "slow"} & set(av["decisions"])
+    assert ghost.col("cav.v").min() < 5.0
     assert av["v2x_self_bsms"] == {}  # a ghost in the conflict zone is an obstacle, never taken for the ego
