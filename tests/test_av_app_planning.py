@@ -159,15 +159,18 @@ def crossing(x0, speed=16.667, emergency=False):
     return lambda t: [obj("x", x0 + speed * t, 0.0, 0.0, speed, 4.5, 1.8, emergency)]
 
 
+def crossing_at_60_kmh(**planner):
+    """The ego (30 km/h) northbound and a vehicle crossing eastward at 60 km/h that, unchecked, would both be
+    at the origin at t = 5 s: (cfg, route, the ego's start (x, y, yaw, v), the crossing vehicle's x0)."""
+    cfg = config(route={"waypoints": [[0.0, -200.0], [0.0, 200.0]]}, planner=planner)
+    off = cfg.vehicle.length / 2 - cfg.vehicle.rear_overhang
+    return cfg, Route(cfg.route.waypoints, 6.0), (0.0, -5.0 * 8.333 - off, math.pi / 2, 8.333), -5.0 * 16.667
+
+
 def test_planner_stops_before_the_zone_for_a_vehicle_crossing_at_60_kmh():
     # the stop itself: a slow-down yield (the next test) would let this vehicle pass without one
-    cfg = config(route={"waypoints": [[0.0, -200.0], [0.0, 200.0]]}, planner={"slow_yield": False})
-    route = Route(cfg.route.waypoints, 6.0)
+    cfg, route, start, x0 = crossing_at_60_kmh(slow_yield=False)
     v, m = cfg.vehicle, cfg.planner.margin_m
-    off = v.length / 2 - v.rear_overhang
-    # unchecked, the ego (30 km/h) and the crossing vehicle would both be at the origin at t = 5 s
-    start = (0.0, -5.0 * 8.333 - off, math.pi / 2, 8.333)
-    x0 = -5.0 * 16.667
     # the first plan: yield, with a stop before the zone (the ego's grown box touching the crossing lane)
     plan = Planner(cfg, route).plan(0.0, start[:3], start[3], crossing(x0)(0.0))
     assert plan.decision == "yield" and plan.cause == "x"
@@ -189,12 +192,8 @@ def test_planner_gives_way_by_slowing_down_where_that_keeps_the_pet_margin():
     """The same crossing, known 5 s ahead: slowing to a speed at which the vehicle passes first with the PET
     margin to spare is enough; the ego never stops, never enters the lane while the vehicle is there, and
     passes behind it with at least the margin (checked here on the closed loop's own trajectories)."""
-    cfg = config(route={"waypoints": [[0.0, -200.0], [0.0, 200.0]]})
-    route = Route(cfg.route.waypoints, 6.0)
-    v, m = cfg.vehicle, cfg.planner.margin_m
-    off = v.length / 2 - v.rear_overhang
-    start = (0.0, -5.0 * 8.333 - off, math.pi / 2, 8.333)
-    x0 = -5.0 * 16.667
+    cfg, route, start, x0 = crossing_at_60_kmh()
+    v = cfg.vehicle
     plan = Planner(cfg, route).plan(0.0, start[:3], start[3], crossing(x0)(0.0))
     assert plan.decision == "slow" and plan.cause == "x" and not plan.stops
     (ch,) = plan.choices
