@@ -197,6 +197,9 @@ class PlannerSection:
     margin_m: float = _f(0.4, "safety margin added on every side of both footprints, m", low=0.0)
     pet_margin_s: float = _f(1.5, "yield when the post-encroachment time would be shorter, s", low=0.0)
     pet_margin_emergency_s: float = _f(3.0, "the same for an emergency vehicle (give way), s", low=0.0)
+    pet_margin_emergency_merge_s: float = _f(2.5, "... where the ego would join the emergency vehicle's lane ahead "
+                                                  "of it (turning into it, then speeding up ahead of it) rather "
+                                                  "than cross its path, s", low=0.0)
     stop_margin_m: float = _f(1.0, "stop this far before the conflict zone, m", low=0.0)
     stationary_speed: float = _f(0.5, "objects slower than this are predicted standing still, m/s", low=0.0)
     ignore_behind_m: float = _f(0.0, "objects behind the ego's rear in its lane and going its way are its "
@@ -212,13 +215,16 @@ class PlannerSection:
     merge_heading_deg: float = _f(15.0, "the merge into an object's lane ends where the ego's path heads within "
                                         "this of the object's heading (plus one vehicle length); beyond, the object "
                                         "follows the ego", positive=True, high=90.0)
-    slow_yield: bool = _f(True, "give way by slowing down (the highest speed, in steps of 0.25 m/s, at which the object "
+    slow_yield: bool = _f(True, "give way by slowing down (the highest speed, in steps of 0.1 m/s, at which the object "
                                 "passes first and the PET margin holds) before stopping for it; the object must "
                                 "leave the zone within the horizon")
     slow_yield_min_speed: float = _f(2.0, "... down to this speed; below it a stop before the zone is the plan, m/s",
                                      positive=True)
     slow_yield_horizon_s: float = _f(10.0, "... judged on the objects predicted this far ahead (a slower ego arrives "
                                            "later than horizon_s looks), s", positive=True)
+    speed_window_s: float = _f(2.0, "a slow-down is judged on the object's speed fitted to its reported positions "
+                                    "over this long (a reported speed's noise moves its passage by tenths of a "
+                                    "second); 0: the reported speed", low=0.0)
     escape_speed_max: float = _f(22.222, "ahead of a faster vehicle in its lane (after merging ahead of it, or "
                                          "with one closing from behind) the ego speeds up to its speed, up to "
                                          "this (80 km/h), m/s", positive=True)

@@ -191,7 +191,7 @@ class CollisionEstimator:
         hi = np.concatenate([mid, tau_ego[-1:]])
         has &= np.isfinite(lo)
         if not has.any():
-            return GoGaps(None, None, None, False, None)
+            return GoGaps(None, None, None, False, None, False)
         first = int(np.flatnonzero(has)[0])
         aligned = np.abs(wrap(path.yaw - o.yaw)) <= merge_heading
         aligned[:first] = False
@@ -205,7 +205,7 @@ class CollisionEstimator:
         after = has & ~through
         pick = lambda m: float(gap[m].min()) if m.any() else None  # noqa: E731
         return GoGaps(pick(through & ~behind), pick(through & behind), pick(after), bool((after & ~behind).any()),
-                      float(occ.b[through].max()) if through.any() else None)
+                      float(occ.b[through].max()) if through.any() else None, bool(aligned.any()))
 
 
 @dataclass(frozen=True)
@@ -217,3 +217,4 @@ class GoGaps:
     follow: float | None  # beyond the merge, in the object's lane
     leads: bool  # beyond the merge the ego is ahead of the object (which follows it)
     through_out: float | None  # when the object last occupies a station of the zone or the merge (s from now)
+    joins: bool = False  # from the zone on, the ego's path heads the object's way: it joins its lane, not crosses it
