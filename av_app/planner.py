@@ -255,7 +255,7 @@ class Planner:
         for o in objects:
             if self.lanes is not None:
                 o = self.lanes.snap(o)
-            steady = self._steady(o, t, tracks)
+            self._remember(o, t, tracks)
             if self.estimator.follower(o, pose):
                 behind = -float(to_frame(o.x, o.y, pose)[0])
                 if not o.static and o.speed > v0 - ESCAPE_HOLD and behind < o.speed * pl.horizon_s:
@@ -304,7 +304,8 @@ class Planner:
             need_gap = max(pl.merge_gap_s, pl.merge_gap_m / max(o.speed, 1.0))
             # a slow-down lets the object pass first, so its margin is the one behind an object (above); it is
             # chosen for the margin itself: the hysteresis is for when to let go of it
-            slow = (self._slow_cap(path, v0, base_stops, steady, ego, pl.pet_margin_s, self.caps.get(o.id))
+            slow = (self._slow_cap(path, v0, base_stops, self._steady(o, t, tracks[o.id]), ego, pl.pet_margin_s,
+                                   self.caps.get(o.id))
                     if pl.slow_yield else None)
             ch = commit_or_yield(o.id, v0, s0, zone_in, gaps.ahead, pet_margin=margin, merge_gap=need_gap,
                                  stop_margin=pl.stop_margin_m, decel_comfort=cfg.control.decel_comfort,
@@ -377,17 +378,21 @@ class Planner:
                 decision = "hold"
         return Plan(t, accel, steer, decision, cause, target, s0, lateral, conflicts, stops, choices)
 
-    def _steady(self, o: FusedObject, t: float, tracks: dict) -> FusedObject:
-        """The object with its speed fitted (least squares) to its positions along its heading over the last
-        `speed_window_s`, once they span half of it, but never more than FIT_ABOVE_REPORT above the reported
-        speed (the fit lags a braking vehicle); its recent positions go into `tracks`. A slow-down is judged
-        on this speed: it places the object's passage seconds ahead, and the reported speed wanders (the RSU's
-        tracker: 10.2-11.5 m/s for a vehicle holding 11.2, 5th-95th percentile, measured; fitted over 2 s
-        10.5-11.4), so the speed chosen stepped down with each low reading and stayed there (issue 38)."""
+    def _remember(self, o: FusedObject, t: float, tracks: dict) -> None:
+        """Put the object's position at t into `tracks` beside those of the last `speed_window_s`."""
         w = self.cfg.planner.speed_window_s
-        seen = [h for h in self.tracks.get(o.id, []) if h[0] >= t - w - 1e-9 and h[0] < t]
+        seen = [h for h in self.tracks.get(o.id, []) if t - w - 1e-9 <= h[0] < t]
         seen.append((t, o.x, o.y))
         tracks[o.id] = seen
+
+    def _steady(self, o: FusedObject, t: float, seen: list[tuple[float, float, float]]) -> FusedObject:
+        """The object with its speed fitted (least squares) to its positions `seen` along its heading, once
+        they span half of `speed_window_s`, but never more than FIT_ABOVE_REPORT above the reported speed
+        (the fit lags a braking vehicle). A slow-down is judged on this speed: it places the object's passage
+        seconds ahead, and the reported speed wanders (the RSU's tracker: 10.2-11.5 m/s for a vehicle holding
+        11.2, 5th-95th percentile, measured; fitted over 2 s 10.5-11.4), so the speed chosen stepped down with
+        each low reading and stayed there (issue 38)."""
+        w = self.cfg.planner.speed_window_s
         if w <= 0.0 or o.static or len(seen) < 5 or t - seen[0][0] < w / 2:
             return o
         h = np.array(seen)
