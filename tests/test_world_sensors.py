@@ -147,3 +147,35 @@ def test_every_ray_is_answered():
         scan = w.scan("car")
         assert scan.n_rays == 16384 and len(scan.points) == 16384
         assert np.all(np.abs(scan.world_points()[:, 2]) < 0.16)  # ground, road, sidewalk (kerb 0.15 m)
+
+
+def test_scan_points_are_bullets_own_hit_points_bit_for_bit():
+    """The scan turns each hit's fraction into a point ((1 - f) from + f to, as Bullet does) instead of
+    reading Bullet's per-hit position tuples: on the case-study scene (ground, roads, kerbs, the corner
+    building, the ev in view) every point equals Bullet's hit position exactly, and the same rays hit."""
+    pytest.importorskip("pybullet")
+    from master.world.lidar import BATCH
+    from master.world.quiet_pybullet import pybullet as pb
+    from master.world.world import World
+
+    layout = load_scenario(Path(__file__).resolve().parent.parent / "scenarios" / "ima_world.toml").world
+    with World(dataclasses.replace(layout, cameras=[])) as w:
+        w.pose_vehicle("cav", 1.75, -10.0, math.pi / 2)
+        w.pose_vehicle("ev", -12.0, -1.75, 0.0)
+        scan = w.scan("cav", 0.5)
+        lidar = w.lidars["cav"]
+        x, y, yaw = scan.pose
+        c, s = math.cos(yaw), math.sin(yaw)
+        R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+        origin = np.array([x, y, 0.0]) + R @ lidar.mount
+        ends = (origin + (lidar.directions @ R.T) * lidar.spec.range).tolist()
+        hits = []
+        for i in range(0, len(ends), BATCH):
+            hits += pb.rayTestBatch([origin.tolist()] * len(ends[i:i + BATCH]), ends[i:i + BATCH],
+                                    physicsClientId=w.scene.client)
+        kept = [h for h in hits if h[0] >= 0 and h[0] != lidar.self_id]
+        bullet = np.array([h[3] for h in kept])
+        assert len(kept) == len(scan.points) > 8000
+        assert np.array_equal(scan.body_ids, np.array([h[0] for h in kept], dtype=np.int32))
+        assert np.array_equal(scan.points, (bullet - np.array([x, y, 0.0])) @ R)
+        assert w.hits_by_vehicle(scan).get("ev", 0) > 0
