@@ -1,4 +1,4 @@
-"""Pinhole cameras placed in the world, rendered with pybullet's CPU TinyRenderer.
+"""Pinhole cameras placed in the world, rendered by pybullet (its CPU TinyRenderer or OpenGL: renderer.py).
 
 Conventions (OpenCV): camera axes x right, y down, z forward (optical axis).
 Image coordinates are continuous pixels: pixel (row i, column j) covers
@@ -54,7 +54,7 @@ class Frame:
     frame_id: int
     t: float  # simulation time of the frame (s)
     rgb: np.ndarray  # (H, W, 3) uint8
-    seg: np.ndarray  # (H, W) int32: pybullet body id under each pixel, -1 for none
+    seg: np.ndarray | None  # (H, W) int32: pybullet body id under each pixel, -1 for none; None when not asked for
     P: np.ndarray  # 3x4 projection matrix K [R | t]
     K: np.ndarray  # 3x3 intrinsics
     R_wc: np.ndarray  # camera axes in world coordinates (columns x right, y down, z forward)
@@ -110,8 +110,18 @@ class Camera:
         s = (z - self.position[2]) / ray[2]
         return self.position + s * ray
 
-    def render(self, t: float = 0.0, lighting: Lighting | None = None) -> Frame:
-        """Render one frame at simulation time t; raises RuntimeError naming the camera on failure."""
+    def warm_up(self, frames: int) -> None:
+        """Draw `frames` frames and keep nothing (not counted, not timed)."""
+        W, H = self.spec.width, self.spec.height
+        for _ in range(frames):
+            pb.getCameraImage(W, H, self._view, self._proj, renderer=self.renderer, physicsClientId=self.client)
+
+    def render(self, t: float = 0.0, lighting: Lighting | None = None, segmentation: bool = True) -> Frame:
+        """Render one frame at simulation time t; raises RuntimeError naming the camera on failure.
+
+        `segmentation=False` skips the body-id pass (`Frame.seg` is None): only ground truth needs it
+        (datasets, evaluation), not an app's live frames; on EGL it is a second render of the scene.
+        """
         import time
 
         if self.client is None:
@@ -121,13 +131,17 @@ class Camera:
         t0 = time.perf_counter()
         try:
             _, _, rgba, _, seg = pb.getCameraImage(W, H, self._view, self._proj, renderer=self.renderer,
+                                                   flags=0 if segmentation else pb.ER_NO_SEGMENTATION_MASK,
                                                    physicsClientId=self.client, **light)
         except pb.error as exc:
             raise RuntimeError(f"camera {self.name!r}: render failed: {exc}") from exc
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(H, W, 4)[:, :, :3].copy()
-        seg = np.asarray(seg, dtype=np.int64).reshape(H, W)
-        # without the link-index flag pybullet stores the body id; -1 where nothing was hit
-        seg = np.where(seg < 0, -1, seg & ((1 << 24) - 1)).astype(np.int32)
+        if segmentation:
+            seg = np.asarray(seg, dtype=np.int64).reshape(H, W)
+            # without the link-index flag pybullet stores the body id; -1 where nothing was hit
+            seg = np.where(seg < 0, -1, seg & ((1 << 24) - 1)).astype(np.int32)
+        else:
+            seg = None
         self.render_times.append(time.perf_counter() - t0)
         frame = Frame(self.name, self.frame_id, t, rgb, seg, self.projection_matrix(), self.K.copy(),
                       self.R_wc.copy(), self.position.copy())

@@ -71,7 +71,9 @@ from master.scenario.tables import Table, did_you_mean, is_number
 DEFAULT_WHEELBASE = 2.3927  # VehicleDynamics default (CommonRoad vehicle 1)
 VEHICLE_KINDS = ("car", "emergency")
 TLC_MODEL = "TrafficLightController"
-_TOP = ("origin", "intersection", "buildings", "cameras", "vehicles", "signals", "radars")
+_TOP = ("origin", "intersection", "buildings", "cameras", "vehicles", "signals", "radars", "renderer",
+        "sensor_processes")
+RENDERERS = ("auto", "tiny", "egl")  # master/world/renderer.py
 _INTERSECTION = ("road_width", "lane_width", "arm_length", "sidewalk_width")
 _BUILDING = ("name", "x", "y", "size_x", "size_y", "height")
 _CAMERA = ("name", "x", "y", "z", "yaw", "pitch", "roll", "width", "height", "fov_deg", "rate_hz")
@@ -203,6 +205,8 @@ class WorldLayout:
     signals: list[SignalSpec] = field(default_factory=list)
     origin: GeoOrigin = field(default_factory=GeoOrigin)
     radars: dict[str, RadarSpec] = field(default_factory=dict)
+    renderer: str = "auto"  # "auto", "tiny" or "egl" (V2I_RENDERER overrides it)
+    sensor_processes: bool = True  # cameras and lidars in worker processes beside the loop (sensor_worker.py)
 
     @property
     def half_extent(self) -> float:
@@ -233,6 +237,9 @@ class WorldLayout:
                 r["position"] = list(r["position"])
         else:  # a world without radars resolves as it did before they existed
             del out["radars"]
+        for key, default in (("renderer", "auto"), ("sensor_processes", True)):  # likewise for these keys
+            if out[key] == default:
+                del out[key]
         return out
 
 
@@ -290,6 +297,8 @@ def parse_world(table: Any, instances: dict, problem: Callable[[str, str], None]
     layout.vehicles = _vehicles(t, instances, half)
     layout.signals = _signals(t, instances, layout.buildings, half)
     layout.radars = _radars(t, layout.buildings, half)
+    layout.renderer = t.choice("renderer", RENDERERS, "auto")
+    layout.sensor_processes = t.boolean("sensor_processes", True)
     return layout if t.ok else None
 
 

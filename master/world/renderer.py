@@ -1,12 +1,18 @@
 """Which pybullet renderer draws the cameras: the CPU TinyRenderer, or OpenGL through EGL.
 
-`V2I_RENDERER` = `auto` (default: EGL when a GPU device node exists, else the
-CPU renderer), `tiny` or `egl`. EGL also runs on Mesa's software rasteriser
-where no GPU exists (set `egl` explicitly); pybullet ships the plugin.
+Chosen by `[world] renderer` (`auto`, the default, `tiny` or `egl`); the
+environment variable `V2I_RENDERER` overrides the scenario. `auto` takes EGL
+where a GPU device node exists and the CPU renderer elsewhere; when EGL cannot
+be loaded there it falls back to the CPU renderer and says why in one line.
+EGL also runs on Mesa's software rasteriser where no GPU exists (ask for `egl`):
+a frame costs about 110 ms of CPU either way, but llvmpipe spreads it over
+threads and TinyRenderer does not. `auto` stays on TinyRenderer without a GPU
+because the shipped detector was trained on its images (docs/perception.md).
 """
 from __future__ import annotations
 
 import glob
+import logging
 import os
 import pkgutil
 
@@ -14,22 +20,32 @@ from master.world.quiet_pybullet import pybullet as pb
 
 RENDERERS = ("auto", "tiny", "egl")
 ENV = "V2I_RENDERER"
+log = logging.getLogger(__name__)
 
 
 def gpu_present() -> bool:
     return bool(glob.glob("/dev/nvidia[0-9]*") or glob.glob("/dev/dri/renderD*"))
 
 
-def requested() -> str:
-    name = os.environ.get(ENV, "auto").strip().lower() or "auto"
+def requested() -> str | None:
+    """The environment's override, if set."""
+    name = os.environ.get(ENV, "").strip().lower()
+    if not name:
+        return None
     if name not in RENDERERS:
         raise RuntimeError(f"{ENV}={name!r}: expected one of {', '.join(RENDERERS)}")
     return name
 
 
+def choose(configured: str = "auto") -> str:
+    """The renderer to ask for: the environment's override, else the scenario's `[world] renderer`."""
+    return requested() or configured
+
+
 def attach(client: int, name: str | None = None) -> tuple[str, int]:
     """Set up the renderer on a DIRECT client: (name used, pybullet renderer constant)."""
-    name = name or requested()
+    name = name or choose()
+    fallback = name == "auto"
     if name == "auto":
         name = "egl" if gpu_present() else "tiny"
     if name == "tiny":
@@ -37,6 +53,9 @@ def attach(client: int, name: str | None = None) -> tuple[str, int]:
     loader = pkgutil.get_loader("eglRenderer")
     plugin = pb.loadPlugin(loader.get_filename(), "_eglRendererPlugin", physicsClientId=client) if loader else -1
     if plugin < 0:
+        if fallback:
+            log.warning("renderer auto: pybullet's eglRenderer plugin could not be loaded; using TinyRenderer")
+            return "tiny", pb.ER_TINY_RENDERER
         raise RuntimeError("renderer 'egl': pybullet's eglRenderer plugin could not be loaded "
-                           f"(set {ENV}=tiny for the CPU renderer)")
+                           f"(set [world] renderer = \"tiny\" or {ENV}=tiny for the CPU renderer)")
     return "egl", pb.ER_BULLET_HARDWARE_OPENGL

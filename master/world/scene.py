@@ -39,7 +39,8 @@ LAMP_R, LAMP_T, LAMP_PITCH = 0.16, 0.04, 0.36
 class Scene:
     """Static geometry plus one multibody per vehicle; `client` is the pybullet client id."""
 
-    def __init__(self, layout: WorldLayout):
+    def __init__(self, layout: WorldLayout, renderer_choice: str | None = None):
+        """`renderer_choice`: "auto", "tiny" or "egl" (master/world/renderer.py); None: the layout's."""
         self.layout = layout
         self.client = pb.connect(pb.DIRECT)
         if self.client < 0:
@@ -54,7 +55,8 @@ class Scene:
         try:
             from master.world import renderer
 
-            self.renderer_name, self.renderer = renderer.attach(self.client)
+            self.renderer_name, self.renderer = renderer.attach(self.client,
+                                                                renderer_choice or renderer.choose(layout.renderer))
             self._build_ground()
             for b in layout.buildings:
                 self.building_ids[b.name] = self._box((b.x, b.y, b.height / 2),
