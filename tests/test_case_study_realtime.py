@@ -164,6 +164,14 @@ def test_every_stage_is_measured_on_one_clock(realtime_run):
 
 
 def test_a_run_that_missed_deadlines_says_so(realtime_run):
-    rt = realtime_run["meta"]["realtime"]
+    """Warned exactly when over 1 % of steps missed their deadline or the lag's p99 passed one step
+    (master/run/verdict.py). It said "when any step missed", which no run met until one missed a single
+    step of 1200 (the camera and lidar now in worker processes beside the loop): by the verdict's rule
+    that run kept real time."""
+    from master.run.verdict import MISS_FRACTION
+
+    meta = realtime_run["meta"]
+    rt = meta["realtime"]
     warned = "WARNING: the run did not keep real time" in realtime_run["stdout"]
-    assert warned == (rt["deadline_misses"] > 0), (rt, realtime_run["stdout"][-2000:])
+    kept = rt["deadline_misses"] <= MISS_FRACTION * meta["steps_done"] and rt["lag_s"]["p99"] <= meta["step_s"]
+    assert warned == (not kept), (rt, realtime_run["stdout"][-2000:])

@@ -6,8 +6,9 @@ payloads), `radar/<radar>` (bridges.radar_stream payload). Each message carries
 the simulation time of the sample; the master publishes them after the step
 that produced them, so in lockstep an app sees them before the tick of that
 time. In realtime a sample carries the run clock's time at which it was
-published (`RunContext.stamp_time`), as a real sensor stamps its capture time
-on the clock the apps share.
+taken (`RunContext.stamp_time` then), as a real sensor stamps its capture time
+on the clock the apps share, and is published when it is ready: a camera
+frame or lidar scan taken in a worker process arrives its render time later.
 """
 from __future__ import annotations
 
@@ -76,7 +77,11 @@ class StreamsHook(Hook):
         streams = self.streams
         if not streams.labels and self.part.world is not None:
             streams.labels.update(self.part.world.scene.labels)
-        stamp = self.ctx.stamp_time(t)
+        # the run clock's time when the sample was taken (the world participant's; in realtime a frame a
+        # worker drew arrives later than that, as a camera's frame arrives after its exposure)
+        stamp = self.part.capture_stamp.get((kind, name))
+        if stamp is None:
+            stamp = self.ctx.stamp_time(t)
         if stamp != t:
             t = stamp
             if kind in ("camera", "radar"):  # their payloads carry the sample's time too

@@ -445,6 +445,22 @@ def _fmt(value: Any) -> str:
     return "n/a" if value is None else str(value)
 
 
+def world_sensors_line(meta: dict[str, Any]) -> str | None:
+    """Who drew the cameras and where the sensors ran, from metadata.json's world section (None without one)."""
+    w = meta.get("world")
+    if not isinstance(w, dict) or "renderer" not in w:
+        return None
+    where = ", ".join(w.get("sensor_processes") or []) or "none"
+    out = [f"world: renderer {w['renderer']}; sensors in worker processes: {where}"]
+    for kind in ("cameras", "lidars"):
+        for name, s in (w.get(kind) or {}).items():
+            p50 = (s.get("render_s") or s.get("scan_s") or {}).get("p50")
+            out.append(f"{kind[:-1]} {name}: {s.get('frames', s.get('scans'))} taken"
+                       + (f", p50 {p50 * 1e3:.0f} ms" if p50 is not None else "")
+                       + (f", {s['dropped']} dropped" if s.get("dropped") else ""))
+    return "; ".join(out)
+
+
 def _column(run: Run, clip: dict[str, Any] | None, clip_bytes: bytes | None) -> str:
     status = run.meta.get("status", "?")
     parts = [f"<h2>{html.escape(run.name)}</h2>",
@@ -455,6 +471,9 @@ def _column(run: Run, clip: dict[str, Any] | None, clip_bytes: bytes | None) -> 
         cls = "bad" if run.metrics.get("collision") else "good"
         parts.append(f"<div class='verdict {cls}'>" + "<br>".join(html.escape(v) for v in verdict) + "</div>")
     parts.append(_metrics_table(run.metrics))
+    sensors = world_sensors_line(run.meta)
+    if sensors:
+        parts.append(f"<p class='note'>{html.escape(sensors)}</p>")
     parts.append(_img(plot_top_down(run), "top-down trajectories"))
     parts.append(_img(plot_latency(run), "latency per stage"))
     if run.metrics.get("preemption") is not None:

@@ -124,7 +124,8 @@ class CoSimulation:
         if scenario.world is not None:
             from master.world.world import WorldParticipant
 
-            self.world = WorldParticipant(scenario.world, scenario.time.start)
+            self.world = WorldParticipant(scenario.world, scenario.time.start,
+                                          workers=scenario.world.sensor_processes)
         self.radio = RadioBridge(scenario.v2x) if scenario.v2x is not None else None  # the V2X air ([v2x])
         # apps over a bus following the master's clock ([bridge], [participants.NAME])
         self.participants = ParticipantBridge(scenario.participants, scenario.time.mode, scenario.time.rtf,

@@ -23,12 +23,18 @@ class World:
     The radars need no pybullet: they see the vehicles' poses and the buildings' boxes (master/world/radar.py).
     """
 
-    def __init__(self, layout: WorldLayout):
+    def __init__(self, layout: WorldLayout, renderer: str | None = None):
+        """`renderer`: "auto", "tiny" or "egl"; None: V2I_RENDERER, else the layout's `renderer`."""
         self.layout = layout
-        self.scene = Scene(layout)
+        self.scene = Scene(layout, renderer)
         c = self.scene.client
         try:
             self.cameras = {s.name: Camera(s, c, self.scene.renderer) for s in layout.cameras}
+            if self.cameras and self.scene.renderer_name == "egl":
+                # pybullet's EGL renderer draws its first two frames unlike every later one (26k pixels of a
+                # 640x480 frame differ, by up to 61 levels): drawn and dropped here, so that every frame
+                # a run or a dataset keeps is drawn alike, whichever process draws it
+                next(iter(self.cameras.values())).warm_up(2)
             self.lidars = {v.name: Lidar(v, v.lidar, c, self.scene.vehicle_ids[v.name])
                            for v in layout.vehicles.values() if v.lidar is not None}
             self.radars = {n: Radar(s, self._clear) for n, s in layout.radars.items()}
@@ -94,10 +100,20 @@ class WorldParticipant(Hook):
     Stores no images: counts and times.
 
     `sensors=False` leaves cameras, lidars, radars and GNSS out (a snapshot needs only the poses).
+
+    With `workers` (the run's `[world] sensor_processes`), cameras and lidars take their samples in
+    worker processes (master/world/sensor_worker.py), each on its own core beside the loop. In
+    lockstep the step waits for every sample of its time and hands them to the listeners in the same
+    order and with the same contents as if taken here, so an app sees the same bytes. In realtime the
+    loop hands the world of a sample time over and steps on; the sample reaches the listeners when its
+    worker is done, stamped with the run clock's time at which it was taken (`capture_stamp`), as a
+    camera's frame arrives after its exposure. A sample that falls due while the sensor's previous one is
+    still being taken is dropped (counted), as a camera drops frames it cannot read out.
     """
 
-    def __init__(self, layout: WorldLayout, start: float, sensors: bool = True):
+    def __init__(self, layout: WorldLayout, start: float, sensors: bool = True, workers: bool = False):
         self.layout, self.start, self.sensors = layout, start, sensors
+        self.workers_wanted = workers and sensors
         self.world: World | None = None
         self._getters: list[tuple[str, Any]] = []
         self._signal_getters: list[tuple[Any, list[str]]] = []  # (get state_k values, head per value)
@@ -110,18 +126,55 @@ class WorldParticipant(Hook):
         self.radar_log: dict[str, list[tuple[float, list[str]]]] = {}  # radar -> (t, vehicles reported)
         # called as listener(kind, name, t, data) for each camera Frame, lidar Scan, radar RadarScan and GNSS Fix
         self.listeners: list[Any] = []
+        # the camera's body-id pass: only ground truth needs it (a hook that records it sets this)
+        self.segmentation = False
+        self.realtime = False
+        self._stamp = lambda t: t  # the run clock's time now, given the step's time (RunContext.stamp_time)
+        self.capture_stamp: dict[tuple[str, str], float] = {}  # (kind, name) -> stamp of the sample being handed out
+        self._workers: dict[str, Any] = {}  # "camera" / "lidar" -> SensorWorker
+        self._in_flight: dict[str, list[tuple[str, float, float]]] = {}  # kind -> [(name, t, stamp)] in order
+        self.dropped: dict[tuple[str, str], int] = {}
+        self._renderer_used: str | None = None  # the cameras' renderer, where a worker draws them
+        self._worker_kinds: list[str] = []
 
     name = "world"
 
     def open(self, ctx: RunContext) -> dict[str, Any]:
         """The loop's world hook: the scene, posed from the run's FMUs; the run's other hooks see it as ctx.world."""
+        self.realtime = ctx.mode == "realtime"
+        self._stamp = ctx.stamp_time
         meta = self.attach(ctx.fmus, ctx.t0)
         ctx.world = self.world
         return meta
 
+    def _start_workers(self) -> None:
+        from master.world import renderer
+        from master.world.sensor_worker import SensorWorker
+
+        kinds = [k for k, present in (("camera", self.layout.cameras),
+                                      ("lidar", any(v.lidar for v in self.layout.vehicles.values()))) if present]
+        try:
+            for kind in kinds:
+                self._workers[kind] = SensorWorker(kind, self.layout, renderer.choose(self.layout.renderer))
+                self._in_flight[kind] = []
+            for worker in self._workers.values():
+                worker.wait_ready()
+                if worker.vehicle_ids != self.world.scene.vehicle_ids:
+                    raise RuntimeError(f"{worker.kind} worker: its scene's body ids differ from the master's "
+                                       f"({worker.vehicle_ids} vs {self.world.scene.vehicle_ids})")
+            if "camera" in self._workers:
+                self._renderer_used = self._workers["camera"].renderer_name
+            self._worker_kinds = sorted(self._workers)
+        except Exception:
+            self._close_workers()
+            raise
+
     def attach(self, fmus: dict[str, Any], t: float) -> dict[str, Any]:
         """Build the scene and pose it from `fmus` at t (also for tools that step FMUs themselves)."""
-        self.world = World(self.layout)
+        # with workers the cameras are drawn there: the master's own scene needs no OpenGL context
+        self.world = World(self.layout, renderer="tiny" if self.workers_wanted and self.layout.cameras else None)
+        if self.workers_wanted:
+            self._start_workers()
         for name in self.layout.vehicles:
             fmu = fmus[name]
             outs = [v for v in ("x", "y", "yaw", "v") if v in fmu.variables]
@@ -160,21 +213,66 @@ class WorldParticipant(Hook):
             for head, state in zip(heads, get()):
                 if w.set_signal(head, int(state)):
                     self.signal_log.append((t_next, head, int(state)))
-        for (kind, name), schedule in self._schedules.items():
-            if not schedule.due(t_next):
+        if self.realtime:
+            self._deliver_finished(wait=False)
+        due = [key for key, schedule in self._schedules.items() if schedule.due(t_next)]
+        if not due:
+            return
+        stamp = self._stamp(t_next)
+        if self._workers:
+            self._hand_over([key for key in due if key[0] in self._workers], t_next, stamp)
+            if not self.realtime:
+                self._deliver_finished(wait=True)  # in the order the samples were due, as taken here
+        for kind, name in due:
+            if kind in self._workers:
                 continue
             if kind == "camera":
-                data = w.cameras[name].render(t_next)
+                data = w.cameras[name].render(t_next, segmentation=self.segmentation)
             elif kind == "lidar":
                 data = w.scan(name, t_next)
-                self.scans[name].append((t_next, w.hits_by_vehicle(data)))
             elif kind == "radar":
                 data = w.radar_scan(name, t_next)
                 self.radar_log[name].append((t_next, list(w.radars[name].reported)))
             else:
                 data = self._take_fix(name, t_next)
-            for listener in self.listeners:
-                listener(kind, name, t_next, data)
+            self._hand_out(kind, name, t_next, stamp, data)
+
+    def _hand_over(self, keys: list[tuple[str, str]], t: float, stamp: float) -> None:
+        """Give the world of time t to the workers for these samples (realtime: drop a busy sensor's)."""
+        from master.world.sensor_worker import Job
+
+        if not keys:
+            return
+        scene = self.world.scene
+        poses, signals = dict(scene.poses), dict(scene.signal_states)
+        for kind, name in keys:
+            if self.realtime and any(n == name for n, _, _ in self._in_flight[kind]):
+                self.dropped[(kind, name)] = self.dropped.get((kind, name), 0) + 1
+                continue
+            self._workers[kind].submit(Job(kind, name, t, poses, signals, self.segmentation))
+            self._in_flight[kind].append((name, t, stamp))
+
+    def _deliver_finished(self, wait: bool) -> None:
+        """Hand out the workers' finished samples (all of them, waiting, when `wait`), cameras first."""
+        for kind, worker in self._workers.items():
+            queue = self._in_flight[kind]
+            while queue and (wait or worker.ready()):
+                name, t, stamp = queue.pop(0)
+                data, seconds = worker.result()
+                if kind == "camera":
+                    cam = self.world.cameras[name]
+                    cam.frame_id = data.frame_id + 1
+                    cam.render_times.append(seconds)
+                else:
+                    self.world.lidars[name].scan_times.append(seconds)
+                self._hand_out(kind, name, t, stamp, data)
+
+    def _hand_out(self, kind: str, name: str, t: float, stamp: float, data: Any) -> None:
+        if kind == "lidar":
+            self.scans[name].append((t, self.world.hits_by_vehicle(data)))
+        self.capture_stamp[(kind, name)] = stamp
+        for listener in self.listeners:
+            listener(kind, name, t, data)
 
     def _take_fix(self, name: str, t: float) -> None:
         x, y, yaw, v = self.world.scene.poses[name]
@@ -194,7 +292,8 @@ class WorldParticipant(Hook):
             seen[other] = {"first_hit_s": hit[0][0] if hit else None, "scans_hit": len(hit),
                            "max_rays": max((n for _, n in hit), default=0)}
         return {"scans": len(scans), "rate_hz": lidar.spec.rate_hz, "rays_per_scan": len(lidar.directions),
-                "scan_s": percentiles(lidar.scan_times), "vehicles": seen}
+                "scan_s": percentiles(lidar.scan_times), "dropped": self.dropped.get(("lidar", name), 0),
+                "vehicles": seen}
 
     def radar_metadata(self, name: str) -> dict[str, Any]:
         radar = self.world.radars[name]
@@ -219,9 +318,11 @@ class WorldParticipant(Hook):
             "poses": {n: [x, y, yaw] for n, (x, y, yaw, _) in poses.items()},  # last rear-axle poses
             "speeds": {n: v for n, (_, _, _, v) in poses.items()},  # last speeds (m/s)
             "sensors": self.sensors,
-            "renderer": w.scene.renderer_name,
+            "renderer": self._renderer_used or w.scene.renderer_name,
+            "sensor_processes": self._worker_kinds,  # the sensor kinds taken in worker processes
             "cameras": {n: {"frames": c.frame_id, "width": c.spec.width, "height": c.spec.height,
-                            "rate_hz": c.spec.rate_hz, "render_s": percentiles(c.render_times)}
+                            "rate_hz": c.spec.rate_hz, "render_s": percentiles(c.render_times),
+                            "dropped": self.dropped.get(("camera", n), 0)}
                         for n, c in w.cameras.items()},
             "lidars": {n: self.lidar_metadata(n) for n in w.lidars},
             "radars": {n: self.radar_metadata(n) for n in w.radars},
@@ -235,7 +336,13 @@ class WorldParticipant(Hook):
                         for s in self.layout.signals},
         }
 
+    def _close_workers(self) -> None:
+        for worker in self._workers.values():
+            worker.close()
+        self._workers = {}
+
     def close(self, outcome: Outcome | None = None) -> dict[str, Any]:
+        self._close_workers()  # samples still being taken are dropped with them
         meta = self.metadata()
         if self.world is not None:
             self.world.close()

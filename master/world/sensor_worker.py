@@ -1,0 +1,205 @@
+"""Cameras and lidars in worker processes beside the master's loop.
+
+A camera frame costs about 110 ms of CPU (640x480, pybullet's EGL renderer on
+Mesa's llvmpipe; TinyRenderer about 170 ms) and a 16 x 1024 lidar scan about
+45 ms: run on the loop's thread, one after the other, they held the case-study
+world to 0.45-0.6x real time while the second core waited, and in a realtime
+run every sample stalled the loop for several steps. Each `SensorWorker` owns
+its own copy of the scene (built from the same layout, so every body has the
+same id as in the master's scene), is handed the vehicles' poses and the lamp
+states of one sample time (`Job`) and answers with the `Frame` or `Scan` the
+master's scene would have given: the same bytes (tests/test_world_workers.py).
+
+Processes, not threads: pybullet holds the GIL through `getCameraImage` and
+`rayTestBatch`, so a thread would not overlap the loop. A worker is a fresh
+interpreter (`python -m master.world.sensor_worker`), not a fork (the master
+runs the bus's threads and may hold an OpenGL context) nor a multiprocessing
+spawn (which runs the caller's main script again in the child), with its
+thread budget in its environment (`THREADS`) and a socket to the master.
+"""
+from __future__ import annotations
+
+import os
+import pickle
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+from master.world.layout import WorldLayout
+
+# Threads each worker may start, so that master, renderer, lidar and two apps share 2 cores without
+# oversubscribing them: numpy's BLAS one thread (its idle threads spin: 3.5 % of a render's profile);
+# llvmpipe two raster threads unless the user set LP_NUM_THREADS (a frame costs the same CPU either way,
+# 105 ms on one thread or 62 ms of wall time on two: the frame arrives sooner).
+THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+RENDER_THREADS = "2"
+START_TIMEOUT_S = 120.0  # a busy 2-core machine builds a scene and loads EGL in a few seconds
+JOB_TIMEOUT_S = 60.0
+ROOT = Path(__file__).resolve().parents[2]  # the folder holding the master package
+
+
+@dataclass
+class Job:
+    """One sample to take: the world as it is at simulation time t."""
+
+    kind: str  # "camera" or "lidar"
+    name: str  # the camera's name, or the lidar's vehicle
+    t: float
+    poses: dict[str, tuple[float, float, float, float]]  # vehicle -> x, y, yaw, v (rear axle)
+    signals: dict[str, int]  # signal head -> MovementPhaseState shown
+    segmentation: bool = False  # cameras: the body-id pass too (ground truth only)
+
+
+def _serve(conn, layout: WorldLayout, renderer: str | None) -> None:
+    """The worker's loop: build the scene, then answer jobs in order until told to stop (None)."""
+    from master.world.world import World
+
+    try:
+        world = World(layout, renderer=renderer)
+    except Exception as exc:  # noqa: BLE001 - said to the master, which raises it naming the worker
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        return
+    conn.send(("ready", world.scene.renderer_name, dict(world.scene.vehicle_ids)))
+    try:
+        while True:
+            try:
+                job = conn.recv()
+            except EOFError:
+                return
+            if job is None:
+                return
+            for name, pose in job.poses.items():
+                world.pose_vehicle(name, *pose)
+            for head, state in job.signals.items():
+                world.set_signal(head, state)
+            t0 = time.perf_counter()
+            try:
+                if job.kind == "camera":
+                    data = world.cameras[job.name].render(job.t, segmentation=job.segmentation)
+                else:
+                    data = world.scan(job.name, job.t)
+            except Exception as exc:  # noqa: BLE001
+                conn.send(("error", f"{type(exc).__name__}: {exc}"))
+                continue
+            conn.send(("ok", data, time.perf_counter() - t0))
+    finally:
+        world.close()
+
+
+class SensorWorker:
+    """A process with its own scene that takes `kind` samples ("camera" or "lidar") in the order asked.
+
+    `submit` hands a job over and returns at once; `ready` says whether the oldest one is done;
+    `result` waits for it: (Frame or Scan, seconds the worker spent on it).
+    """
+
+    def __init__(self, kind: str, layout: WorldLayout, renderer: str | None = None):
+        self.kind = kind
+        env = {**os.environ, **THREADS}
+        if kind == "camera" and "LP_NUM_THREADS" not in os.environ:
+            env["LP_NUM_THREADS"] = RENDER_THREADS
+        env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p])
+        parent, child = socket.socketpair()
+        self._stderr = tempfile.TemporaryFile()
+        try:
+            # stdout dropped: pybullet's EGL plugin prints its GL strings there
+            self._proc = subprocess.Popen([sys.executable, "-m", "master.world.sensor_worker", str(child.fileno())],
+                                          pass_fds=(child.fileno(),), env=env, stdin=subprocess.DEVNULL,
+                                          stdout=subprocess.DEVNULL, stderr=self._stderr)
+        finally:
+            child.close()
+        self._conn = Connection(parent.detach())
+        self._conn.send((layout, renderer if kind == "camera" else "tiny"))
+        self.pending = 0
+        self.renderer_name: str | None = None
+        self.vehicle_ids: dict[str, int] = {}
+        self._started = False
+
+    def wait_ready(self) -> None:
+        """Wait until the worker has built its scene; raises RuntimeError with the worker's reason."""
+        if self._started:
+            return
+        msg = self._receive(START_TIMEOUT_S, "to build its scene")
+        if msg[0] != "ready":
+            self.close()
+            raise RuntimeError(f"{self.kind} worker: could not build the scene: {msg[1]}")
+        _, self.renderer_name, self.vehicle_ids = msg
+        self._started = True
+
+    def submit(self, job: Job) -> None:
+        try:
+            self._conn.send(job)
+        except OSError:
+            raise self._died("to hand it a sample") from None
+        self.pending += 1
+
+    def ready(self) -> bool:
+        return self.pending > 0 and self._conn.poll()
+
+    def result(self) -> tuple[Any, float]:
+        msg = self._receive(JOB_TIMEOUT_S, "for a sample")
+        self.pending -= 1
+        if msg[0] != "ok":
+            raise RuntimeError(f"{self.kind} worker: {msg[1]}")
+        return msg[1], msg[2]
+
+    def _died(self, what: str) -> RuntimeError:
+        self._stderr.seek(0)
+        tail = self._stderr.read().decode(errors="replace").strip().splitlines()[-3:]
+        return RuntimeError(f"{self.kind} worker ended (exit code {self._proc.poll()}) while the master waited "
+                            f"{what}" + (": " + " | ".join(tail) if tail else ""))
+
+    def _receive(self, timeout: float, what: str):
+        deadline = time.monotonic() + timeout
+        while not self._conn.poll(0.5):
+            if self._proc.poll() is not None:
+                raise self._died(what)
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"{self.kind} worker: no answer in {timeout:g} s while the master waited {what}")
+        try:
+            return self._conn.recv()
+        except (EOFError, OSError, pickle.UnpicklingError):
+            raise self._died(what) from None
+
+    def close(self) -> None:
+        """Stop the worker (what it has not answered is dropped)."""
+        try:
+            self._conn.send(None)
+            deadline = time.monotonic() + 5.0
+            # read what it still answers: a worker blocked writing a frame nobody reads would never see the None
+            while self._proc.poll() is None and time.monotonic() < deadline:
+                if self._conn.poll(0.05):
+                    self._conn.recv()
+        except (OSError, ValueError, EOFError, pickle.UnpicklingError):
+            pass
+        try:
+            self._proc.wait(5.0)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait(5.0)
+        self._conn.close()
+        self._stderr.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The worker process: `python -m master.world.sensor_worker FD` (FD: its socket to the master)."""
+    argv = sys.argv[1:] if argv is None else argv
+    conn = Connection(int(argv[0]))
+    try:
+        layout, renderer = conn.recv()
+    except EOFError:
+        return 0
+    _serve(conn, layout, renderer)
+    conn.close()
+    # Mesa's EGL can corrupt the heap at interpreter exit once the plugin ran: leave without the teardown
+    os._exit(0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
