@@ -156,3 +156,32 @@ def test_the_report_says_which_renderer_drew_the_cameras_and_where_the_sensors_r
     assert line == ("world: renderer egl; sensors in worker processes: camera, lidar; "
                     "camera rsu_cam: 79 taken, p50 62 ms, 2 dropped; lidar cav: 81 taken, p50 41 ms")
     assert world_sensors_line({"world": {"vehicles": []}}) is None and world_sensors_line({}) is None
+
+
+def test_the_camera_archive_writes_off_the_loop_in_order_and_a_failure_is_raised_at_close(tmp_path):
+    """The archive's JPEG work runs on a thread of its own; every frame handed over is on disk, in order,
+    when it closes, and a frame it could not write fails the close (not lost on the thread)."""
+    import csv
+    from types import SimpleNamespace
+
+    from master.run.run_records import FRAMES_CSV, CameraArchive
+
+    part = SimpleNamespace(listeners=[])
+    archive = CameraArchive(part)
+    archive.open(SimpleNamespace(run_dir=tmp_path))
+    eye = np.eye(3)
+    for i in range(5):
+        frame = SimpleNamespace(frame_id=i, t=0.1 * i, rgb=np.full((48, 64, 3), 40 * i, np.uint8), P=np.ones((3, 4)),
+                                K=eye, R_wc=eye, position=np.zeros(3))
+        part.listeners[0]("camera", "cam", frame.t, frame)
+    meta = archive.close()
+    assert meta["frames"] == 5 and part.listeners == []
+    rows = list(csv.DictReader(open(tmp_path / "camera" / "cam" / FRAMES_CSV)))
+    assert [int(r["frame_id"]) for r in rows] == list(range(5))
+    assert all((tmp_path / "camera" / "cam" / r["file"]).stat().st_size > 100 for r in rows)
+
+    broken = CameraArchive(part)
+    broken.open(SimpleNamespace(run_dir=tmp_path / "b"))
+    part.listeners[0]("camera", "cam", 0.0, SimpleNamespace(frame_id=0, t=0.0, rgb=None))  # no picture
+    with pytest.raises(RuntimeError, match="camera archive"):
+        broken.close()

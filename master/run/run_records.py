@@ -70,7 +70,12 @@ class TraceRecorder(Hook):
 
 
 class CameraArchive(Hook):
-    """Listens to the world's cameras and keeps each frame as a JPEG (OpenCV) for the report's clip."""
+    """Listens to the world's cameras and keeps each frame as a JPEG (OpenCV) for the report's clip.
+
+    The JPEG encoding and the file writes run on a thread of their own, in the order the frames came
+    (OpenCV releases the GIL while it encodes): on the loop's thread they cost a realtime step 3-8 ms
+    at 10 Hz. Closing waits for every frame handed over.
+    """
 
     name = "camera_archive"
 
@@ -78,16 +83,24 @@ class CameraArchive(Hook):
         self.part, self.quality = world_participant, quality
         self.root: Path | None = None
         self._writers: dict[str, tuple[Any, Any]] = {}
+        self._pool = None
+        self._pending: list[Any] = []  # the thread's futures: a failure is raised at close, not lost
         self.frames = 0
         self.bytes = 0
 
     def open(self, ctx: RunContext) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
         self.root = Path(ctx.run_dir) / CAMERA_DIR
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="camera-archive")
         self.part.listeners.append(self._on_sample)
 
     def _on_sample(self, kind: str, name: str, t: float, data: Any) -> None:
-        if kind != "camera":
-            return
+        if kind == "camera":
+            self._pending = [f for f in self._pending if not f.done() or f.exception() is not None]
+            self._pending.append(self._pool.submit(self._keep, name, data))
+
+    def _keep(self, name: str, data: Any) -> None:
         import cv2
 
         folder = self.root / name
@@ -113,6 +126,12 @@ class CameraArchive(Hook):
     def close(self, outcome: Outcome | None = None) -> dict[str, Any]:
         if self._on_sample in self.part.listeners:
             self.part.listeners.remove(self._on_sample)
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)  # every frame handed over is written before the files close
+            self._pool = None
         for f, _ in self._writers.values():
             f.close()
+        for future in self._pending:
+            if future.exception() is not None:
+                raise RuntimeError(f"camera archive: {future.exception()}") from future.exception()
         return {"folder": CAMERA_DIR, "cameras": sorted(self._writers), "frames": self.frames, "bytes": self.bytes}
