@@ -4,15 +4,14 @@ master's over a veth pair; the master and the AV app in the first. Wall-clock pa
 In realtime every stamp of the latency chain is on the run clock (the master's published sim/wall mapping, which
 follows the pacer's schedule): the apps stamp their work on it, and the master stamps what it hands them (camera
 frames, air arrivals, applied commands) on it too. So every stage is non-negative and every camera-based record
-the AV app turned into a command has an end-to-end figure, even though this shared 2-core machine cannot render
-the 640x480 camera at real time (about 160 ms per frame on pybullet's CPU renderer): the test runs at RTF 0.2
-and checks that the run says so loudly whenever it missed deadlines. Needs root and `ip netns` (skips otherwise).
+the AV app turned into a command has an end-to-end figure. Needs root and `ip netns` (skips otherwise).
 
-RTF 0.2, not 0.3: measured on this machine alone at 0.3, the loop fell behind by seconds (lag p99 5.2 s, achieved
-RTF 0.25), the box's first warning reached the AV app's planner only after the conflict, and whether the cav
-met the ev depended on when its lidar saw it (the old planner happened to arrive after the ev; the commit-or-
-yield one collided at 8.16 s); 16-20 camera-based records made it through. At 0.2: lag p99 0.41 s, the warning
-at 3.86 s, the cav yields on it (min gap 2.08 m), 153 records, E2E p50 142 ms.
+RTF 0.5. The camera and lidar take their samples in worker processes beside the loop (issue 41), so the loop no
+longer stalls for a frame; this 2-core machine holds the case study at RTF 0.6 (docs/case-study.md, "In real
+time") but not at 1, where a simulated second asks more than two cores of work (the camera alone 1.1-2.1 CPU
+seconds): the test keeps a margin under 0.6. Measured here, 3 runs at 0.5 with the box: 4-6 of 1200 steps late,
+lag p99 1.4-2.2 ms, min gap 6.3-6.8 m, 132-133 records end to end, E2E p50 251-290 ms of run clock. (It ran at
+0.2 before: at 0.3 the loop, rendering on its own thread, fell behind by seconds.)
 """
 from __future__ import annotations
 
@@ -32,7 +31,7 @@ from test_hil_netns import MASTER_IP, netns_pair  # noqa: F401  (the two-namespa
 from test_rsu_app_support import free_port, make_pki
 
 ROOT = Path(__file__).resolve().parent.parent
-RTF = 0.2
+RTF = 0.5
 PREFIX = f"test/rt-box-{uuid.uuid4().hex[:8]}"
 pytest.importorskip("zenoh")
 pytest.importorskip("pybullet")
