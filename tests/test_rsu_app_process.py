@@ -38,12 +38,25 @@ def from_pole(b) -> float:
     return math.hypot(b.x - POLE[0], b.y - POLE[1])
 
 
-def in_radar_beam(b) -> bool:
+def in_radar_beam(b, coast_s: float = 0.0) -> bool:
     """Whether a BSM's position is in ima_world.toml's mast radar beam (west, 16 deg; 2 deg of slack each side
-    for the track's motion since the radar's last scan): where a track may have been updated last by it."""
+    for the track's motion since the radar's last scan): where a track may have been updated last by it.
+
+    `coast_s`: how long the track may have run on its own since (the longest wait for the camera's next frame
+    in the run): the position may lie that far ahead of the beam along the BSM's heading and speed."""
     beam = RadarScan("west", 0, 0.0, (POLE[0], POLE[1], 6.0), math.pi, math.radians(20.0), 0.5, 255.0, 0.25,
                      math.radians(0.25), 0.1)
-    return beam.covers(b.x, b.y)
+    if coast_s <= 0 or b.heading is None:
+        return beam.covers(b.x, b.y)
+    yaw = math.radians(90.0 - b.heading)  # J2735: clockwise from north
+    back = np.linspace(0.0, b.speed * coast_s, 50)
+    return any(beam.covers(b.x - d * math.cos(yaw), b.y - d * math.sin(yaw)) for d in back)
+
+
+def longest_camera_gap(bsms) -> float:
+    """The longest time between two camera frames the RSU app turned into BSMs (their frame stamps), seconds."""
+    times = sorted({stamp_s(b.stamps[FRAME]) for b in bsms if FRAME in b.stamps})
+    return float(np.max(np.diff(times)))
 
 
 def case_study_scenario(prefix: str, port: int, rsu_tables: str) -> str:
@@ -340,11 +353,16 @@ def test_realtime_the_app_stamps_on_the_masters_clock(tmp_path, fmu_dir):
     ca = load_certificate(tmp_path / "keys" / "v2i-scenario-ca.cert")
     bsms, rejects = decode_bsms(probe.sent, "rsu", probe.world, Verifier([ca]))
     assert not rejects and bsms
+    # in realtime the camera's frames come when its worker has drawn them (the loop does not wait): on this
+    # 2-core machine at RTF 1 about every other one is dropped, so a track last updated by the radar may run
+    # on its own until the camera's next frame
+    coast = longest_camera_gap(bsms)
+    assert 0.09 <= coast < 1.5
     for b in bsms:
         s = b.stamps
         assert s[ENCODE] <= s[SIGN] == s[SEND] and 0.0 <= b.t_tx <= 4.5
         if FRAME not in s:  # last updated by the mast radar: no camera stamps
-            assert in_radar_beam(b), (b.x, b.y)
+            assert in_radar_beam(b, coast), (b.x, b.y, coast)
             continue
         assert s[FRAME] <= s[DETECT_START] < s[DETECT_END] <= s[ENCODE]
     by_id = defaultdict(list)
