@@ -665,3 +665,35 @@ def test_cut_rule_visible_keeps_edge_slivers_the_dataset_labels(data, tmp_path, 
     with pytest.raises(ValueError, match="needs info.min_visible_pixels .* got 'forty'"):
         train(tmp_path, None, epochs=1, cut_rule="visible", **TINY)
     assert train(tmp_path, None, epochs=1, **TINY)["training"]["cut_rule"] == "half"  # the old rule never reads it
+
+
+def test_training_on_several_folders_joins_them_and_records_each(data, tmp_path, capsys):
+    """The shipped detector learns from the same scenes drawn by two renderers: `--data` repeated joins the
+    folders in order, and the checkpoint names each one's digest, so the exact data stays traceable."""
+    import hashlib
+
+    from master.cli import main
+
+    other = write_dataset(tmp_path / "other", n_images=5, seed=11, max_vehicles=2)
+    joined = train([data, other], None, epochs=1, seed=0, **TINY)["training"]
+    one, two = load_dataset(data).digest(), load_dataset(other).digest()
+    assert joined["images"] == 17
+    assert [(d["sha256"], d["images"]) for d in joined["datasets"]] == [(one, 12), (two, 5)]
+    assert joined["dataset_sha256"] == hashlib.sha256(f"{one}+{two}".encode()).hexdigest()
+    swapped = train([other, data], None, epochs=1, seed=0, **TINY)["training"]
+    assert swapped["dataset_sha256"] != joined["dataset_sha256"]  # the order is part of what was trained on
+    single = train([data], None, epochs=1, seed=0, **TINY)["training"]
+    assert single["dataset_sha256"] == one and single["images"] == 12  # one folder: as before
+    # categories must agree, and a bad folder is named among good ones
+    doc = json.loads((other / "annotations.json").read_text())
+    doc["categories"] = [{"id": c["id"], "name": {"car": "emergency", "emergency": "car"}[c["name"]]}
+                         for c in doc["categories"]]
+    (other / "annotations.json").write_text(json.dumps(doc))
+    with pytest.raises(DatasetError, match=f"{other}: categories .* differ"):
+        train([data, other], None, epochs=1, **TINY)
+    w = tmp_path / "two.pt"
+    assert main(["train-detector", "--data", str(data), "--data", str(tmp_path / "gone"), "--data",
+                 str(tmp_path / "gone2"), "--out", str(w), "--epochs", "1"]) == 2
+    err = capsys.readouterr().err
+    assert f"--data {tmp_path / 'gone'}: not a folder" in err and f"--data {tmp_path / 'gone2'}" in err
+    assert not w.exists()

@@ -17,7 +17,9 @@ from pathlib import Path
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     t = sub.add_parser("train-detector", help="train the RSU's CenterNet vehicle detector on a dataset folder")
-    t.add_argument("--data", required=True, help="dataset folder written by `v2i dataset`")
+    t.add_argument("--data", required=True, action="append",
+                   help="dataset folder written by `v2i dataset`; repeat it to train on several at once (e.g. the "
+                        "same scenes drawn by each renderer)")
     t.add_argument("--out", required=True, help="weights file to write (.pt)")
     t.add_argument("--epochs", type=int, default=30)
     t.add_argument("--seed", type=int, default=0)
@@ -96,8 +98,9 @@ def _cmd_train(args) -> int:
     from rsu_app.perception.dataset import DatasetError
     from rsu_app.perception.train import train
 
-    if not Path(args.data).is_dir():
-        print(f"error: --data {args.data}: not a folder", file=sys.stderr)
+    missing = [d for d in args.data if not Path(d).is_dir()]
+    if missing:
+        print("error: " + "; ".join(f"--data {d}: not a folder" for d in missing), file=sys.stderr)
         return 2
     try:
         input_size = _size_arg("--input", args.input or "320x240")
@@ -115,7 +118,8 @@ def _cmd_train(args) -> int:
                      **({} if args.heat_sigma is None else {"heat_sigma": args.heat_sigma}), context=args.context,
                      override_input=args.input is not None, deep_width=args.deep_width, coords=args.coords,
                      cut_rule=args.cut_rule,
-                     command=command or f"v2i train-detector --data {args.data} --out {args.out} "
+                     command=command or f"v2i train-detector {' '.join('--data ' + d for d in args.data)} "
+                                        f"--out {args.out} "
                                         f"--epochs {args.epochs} --seed {args.seed} --threads {args.threads}")
     except (DatasetError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)

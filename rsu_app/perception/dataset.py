@@ -70,17 +70,41 @@ class Dataset:
     samples: list[Sample]
     categories: dict[int, str]
     info: dict
+    parts: list["Dataset"] = field(default_factory=list)  # the folders a joined set was made of (join_datasets)
 
     def __len__(self) -> int:
         return len(self.samples)
 
+    def part_digests(self) -> list[str]:
+        """The digest of each folder this set was made of (one for a plain folder)."""
+        return [d.digest() for d in self.parts] if self.parts else [self.digest()]
+
     def digest(self) -> str:
-        """sha256 over annotations.json and every image's bytes: names the exact data a model saw."""
+        """sha256 over annotations.json and every image's bytes: names the exact data a model saw. A joined
+        set's digest is the sha256 of its parts' digests, in order, joined by '+'."""
+        if self.parts:
+            return hashlib.sha256("+".join(self.part_digests()).encode()).hexdigest()
         h = hashlib.sha256((self.root / "annotations.json").read_bytes())
         for s in self.samples:
             h.update(s.path.name.encode())
             h.update(s.path.read_bytes())
         return h.hexdigest()
+
+
+def join_datasets(parts: list[Dataset]) -> Dataset:
+    """Several dataset folders as one training set, in the order given (e.g. the same scenes drawn by each
+    renderer). Their categories must agree (a label means one class); the joined set keeps the first
+    one's `root` and `info` and records every part, so `part_digests` still names the exact data."""
+    if not parts:
+        raise DatasetError("no dataset folders given")
+    first = parts[0]
+    for other in parts[1:]:
+        if other.categories != first.categories:
+            raise DatasetError(f"{other.root}: categories {other.categories} differ from {first.root}'s "
+                               f"{first.categories}; a label must mean one class in every folder")
+    if len(parts) == 1:
+        return first
+    return Dataset(first.root, [s for d in parts for s in d.samples], first.categories, first.info, parts)
 
 
 def load_dataset(root: str | Path) -> Dataset:

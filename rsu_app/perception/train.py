@@ -19,13 +19,14 @@ import difflib
 import math
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
 
-from rsu_app.perception.dataset import Dataset, Truth, load_dataset
+from rsu_app.perception.dataset import Dataset, Truth, join_datasets, load_dataset
 from rsu_app.perception.model import FORMAT, CenterNet, ModelConfig, widen
 
 
@@ -309,7 +310,24 @@ def loss_fn(outputs, targets, class_weights: torch.Tensor | None = None) -> tupl
     return total, {"heat": lh.item(), "size": ls.item(), "offset": lo.item()}
 
 
-def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, seed: int = 0, threads: int = 2,
+def _check_dataset(folder, ds: Dataset, cut_rule: str, max_occlusion: float | None) -> None:
+    """Refuse a folder training cannot use, naming it and why, before any time is spent."""
+    if len(ds) == 0:
+        raise ValueError(f"{folder}: the dataset has no images")
+    unknown = {t.label for s in ds.samples for t in s.truths} - set(ModelConfig().classes)
+    if unknown:
+        raise ValueError(f"{folder}: labels {sorted(unknown)} are not among the model's classes")
+    if cut_rule == "visible":
+        try:
+            min_visible_pixels(ds.info)  # refused before training, not inside a batch
+        except ValueError as exc:
+            raise ValueError(f"{folder}: {exc}") from None
+    if max_occlusion is not None and all(t.occlusion is None for s in ds.samples for t in s.truths):
+        raise ValueError(f"{folder}: max_occlusion needs occlusion labels, and this dataset has none "
+                         f"(it was rendered with --no-occlusion)")
+
+
+def train(data: str | Path | Sequence[str | Path], out: str | Path | None = None, *, epochs: int = 30, seed: int = 0, threads: int = 2,
           batch_size: int = 8, lr: float = 2e-3, width: int = 16, input_size: tuple[int, int] = (320, 240),
           augment: bool = True, cache_images: bool = True, crop: tuple[int, int] | None = None,
           heads: str = "separable", command: str | None = None, log=None, init: str | Path | dict | None = None,
@@ -317,7 +335,8 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
           occluders: float = 0.0, heat_sigma: float = HEAT_SIGMA, context: bool = False,
           override_input: bool = False, deep_width: int | None = None, coords: bool = False,
           cut_rule: str = "half") -> dict:
-    """Train on the dataset folder `data`; save to `out` (if given); return the checkpoint dict.
+    """Train on the dataset folder `data` (or several, joined in the order given: e.g. the same scenes
+    drawn by each renderer); save to `out` (if given); return the checkpoint dict.
     `crop` (W, H), multiples of 16 no larger than input_size: train on random windows of that size.
     `init`: a checkpoint to start from (its width, input size and heads are used; the arguments
     for them are then ignored). `max_occlusion` (0..1): mask truths more hidden than this. `class_weights`
@@ -369,20 +388,14 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
         if crop[0] % 16 or crop[1] % 16 or not (0 < crop[0] <= input_size[0] and 0 < crop[1] <= input_size[1]):
             raise ValueError(f"crop must be positive multiples of 16 within input_size {input_size}, got {crop}")
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
-    ds = load_dataset(data)
-    if len(ds) == 0:
-        raise ValueError(f"{data}: the dataset has no images")
-    unknown = {t.label for s in ds.samples for t in s.truths} - set(ModelConfig().classes)
-    if unknown:
-        raise ValueError(f"{data}: labels {sorted(unknown)} are not among the model's classes")
-    if cut_rule == "visible":
-        try:
-            min_visible_pixels(ds.info)  # refused before training, not inside a batch
-        except ValueError as exc:
-            raise ValueError(f"{data}: {exc}") from None
-    if max_occlusion is not None and all(t.occlusion is None for s in ds.samples for t in s.truths):
-        raise ValueError(f"{data}: max_occlusion needs occlusion labels, and this dataset has none "
-                         f"(it was rendered with --no-occlusion)")
+    folders = [data] if isinstance(data, (str, Path)) else list(data)
+    sets = [load_dataset(f) for f in folders]
+    for folder, part in zip(folders, sets):
+        _check_dataset(folder, part, cut_rule, max_occlusion)
+    if cut_rule == "visible" and len({min_visible_pixels(p.info) for p in sets}) > 1:
+        raise ValueError(f"{', '.join(map(str, folders))}: cut_rule 'visible' needs one labelling threshold, and "
+                         f"the folders' info.min_visible_pixels differ")
+    ds = join_datasets(sets)
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
     torch.use_deterministic_algorithms(True)
@@ -437,7 +450,10 @@ def train(data: str | Path, out: str | Path | None = None, *, epochs: int = 30, 
             "command": command or " ".join(sys.argv),
             "seed": seed, "epochs": epochs, "threads": threads, "batch_size": batch_size, "lr": lr,
             "augment": augment, "crop": list(crop) if crop else None, "width": width, "heads": heads,
-            "input_size": list(input_size), "dataset": str(Path(data).resolve()), "dataset_sha256": ds.digest(),
+            "input_size": list(input_size),
+            "dataset": ", ".join(str(Path(f).resolve()) for f in folders), "dataset_sha256": ds.digest(),
+            "datasets": [{"path": str(Path(f).resolve()), "sha256": digest, "images": len(p), "info": p.info}
+                         for f, p, digest in zip(folders, sets, ds.part_digests())],
             "max_occlusion": max_occlusion, "class_weights": class_weights or None, "occluders": occluders,
             "heat_sigma": heat_sigma, "context": context, "deep_width": deep_width,
             "coords": coords, "cut_rule": cut_rule,
