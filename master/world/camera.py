@@ -17,6 +17,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from master.world.quiet_pybullet import gl_to_stderr
 from master.world.quiet_pybullet import pybullet as pb
 
 from master.world.layout import CameraSpec
@@ -113,8 +114,9 @@ class Camera:
     def warm_up(self, frames: int) -> None:
         """Draw `frames` frames and keep nothing (not counted, not timed)."""
         W, H = self.spec.width, self.spec.height
-        for _ in range(frames):
-            pb.getCameraImage(W, H, self._view, self._proj, renderer=self.renderer, physicsClientId=self.client)
+        with gl_to_stderr(self.renderer):
+            for _ in range(frames):
+                pb.getCameraImage(W, H, self._view, self._proj, renderer=self.renderer, physicsClientId=self.client)
 
     def render(self, t: float = 0.0, lighting: Lighting | None = None, segmentation: bool = True) -> Frame:
         """Render one frame at simulation time t; raises RuntimeError naming the camera on failure.
@@ -130,9 +132,10 @@ class Camera:
         light = (lighting or Lighting()).arguments()
         t0 = time.perf_counter()
         try:
-            _, _, rgba, _, seg = pb.getCameraImage(W, H, self._view, self._proj, renderer=self.renderer,
-                                                   flags=0 if segmentation else pb.ER_NO_SEGMENTATION_MASK,
-                                                   physicsClientId=self.client, **light)
+            with gl_to_stderr(self.renderer):
+                _, _, rgba, _, seg = pb.getCameraImage(W, H, self._view, self._proj, renderer=self.renderer,
+                                                       flags=0 if segmentation else pb.ER_NO_SEGMENTATION_MASK,
+                                                       physicsClientId=self.client, **light)
         except pb.error as exc:
             raise RuntimeError(f"camera {self.name!r}: render failed: {exc}") from exc
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(H, W, 4)[:, :, :3].copy()

@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from master.world.quiet_pybullet import gl_to_stderr
 from master.world.quiet_pybullet import pybullet as pb
 
 from master.world.camera import Camera, Frame
@@ -64,8 +65,9 @@ def _alone_pixels(scene: Scene, camera: Camera, body: int) -> int:
         for b in others:
             pb.resetBasePositionAndOrientation(b, (0, 0, -1e4), (0, 0, 0, 1), physicsClientId=c)
         W, H = camera.spec.width, camera.spec.height
-        seg = pb.getCameraImage(W, H, camera._view, camera._proj, renderer=camera.renderer,
-                                physicsClientId=c)[4]
+        with gl_to_stderr(camera.renderer):
+            seg = pb.getCameraImage(W, H, camera._view, camera._proj, renderer=camera.renderer,
+                                    physicsClientId=c)[4]
         seg = np.asarray(seg, dtype=np.int64).reshape(H, W)
         return int(np.count_nonzero(seg == body))
     finally:

@@ -14,6 +14,7 @@ C library through ctypes, closed descriptors) pybullet is imported plainly.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 
@@ -53,4 +54,41 @@ def _import_quietly():
 
 pybullet = _import_quietly()
 
-__all__ = ["pybullet"]
+
+@contextlib.contextmanager
+def stdout_to_stderr():
+    """C-level writes to file descriptor 1 go to descriptor 2 while inside.
+
+    pybullet's EGL plugin prints its GL strings ("GL_VENDOR=...", "ven = ...", "Destroy EGL OpenGL window.")
+    with printf when it loads, on the first frames and when it closes: on stdout, in the middle of a
+    command's `--json` output or a CSV piped on. They go to stderr instead, where logs belong; nothing is
+    thrown away. Python's and C's buffers are flushed at both ends, so earlier and later lines stay in
+    order. The switch is process-wide while inside (a thread printing to stdout then writes to stderr).
+    Where descriptors cannot be duplicated it does nothing."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None)
+        if sys.stdout is not None:
+            sys.stdout.flush()
+        libc.fflush(None)
+        saved = os.dup(1)
+    except (OSError, AttributeError, ValueError):
+        yield
+        return
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        libc.fflush(None)
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def gl_to_stderr(renderer: int):
+    """`stdout_to_stderr()` around a pybullet call that draws with `renderer`, if it is EGL's OpenGL (whose
+    plugin prints); a no-op context for TinyRenderer."""
+    return stdout_to_stderr() if renderer == pybullet.ER_BULLET_HARDWARE_OPENGL else contextlib.nullcontext()
+
+
+__all__ = ["gl_to_stderr", "pybullet", "stdout_to_stderr"]

@@ -17,6 +17,7 @@ import os
 import pkgutil
 
 from master.world.quiet_pybullet import pybullet as pb
+from master.world.quiet_pybullet import stdout_to_stderr
 
 RENDERERS = ("auto", "tiny", "egl")
 ENV = "V2I_RENDERER"
@@ -51,7 +52,8 @@ def attach(client: int, name: str | None = None) -> tuple[str, int]:
     if name == "tiny":
         return "tiny", pb.ER_TINY_RENDERER
     loader = pkgutil.get_loader("eglRenderer")
-    plugin = pb.loadPlugin(loader.get_filename(), "_eglRendererPlugin", physicsClientId=client) if loader else -1
+    with stdout_to_stderr():  # the plugin prints its GL strings while it loads
+        plugin = pb.loadPlugin(loader.get_filename(), "_eglRendererPlugin", physicsClientId=client) if loader else -1
     if plugin < 0:
         if fallback:
             log.warning("renderer auto: pybullet's eglRenderer plugin could not be loaded; using TinyRenderer")

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 
+from master.world.quiet_pybullet import gl_to_stderr
 from master.world.quiet_pybullet import pybullet as pb
 
 from master.world import signals
@@ -263,7 +264,8 @@ class Scene:
     def close(self) -> None:
         if self.client is not None and self.client >= 0:
             try:
-                pb.disconnect(physicsClientId=self.client)
+                with gl_to_stderr(getattr(self, "renderer", None)):  # EGL's plugin says goodbye on stdout
+                    pb.disconnect(physicsClientId=self.client)
             except pb.error:
                 pass
         self.client = -1
