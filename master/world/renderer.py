@@ -7,7 +7,8 @@ be loaded there it falls back to the CPU renderer and says why in one line.
 EGL also runs on Mesa's software rasteriser where no GPU exists (ask for `egl`):
 a frame costs about 110 ms of CPU either way, but llvmpipe spreads it over
 threads and TinyRenderer does not. `auto` stays on TinyRenderer without a GPU
-because the shipped detector was trained on its images (docs/perception.md).
+because the shipped detector, trained on both renderers' images, meets its target
+on TinyRenderer's and not yet on EGL's (docs/perception.md).
 """
 from __future__ import annotations
 
