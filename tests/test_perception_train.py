@@ -691,6 +691,18 @@ def test_training_on_several_folders_joins_them_and_records_each(data, tmp_path,
     (other / "annotations.json").write_text(json.dumps(doc))
     with pytest.raises(DatasetError, match=f"{other}: categories .* differ"):
         train([data, other], None, epochs=1, **TINY)
+    empty = tmp_path / "empty"
+    (empty / "images").mkdir(parents=True)
+    (empty / "annotations.json").write_text(json.dumps({"images": [], "annotations": [], "categories": []}))
+    bare = write_dataset(tmp_path / "bare", n_images=3, seed=12)
+    doc = json.loads((bare / "annotations.json").read_text())
+    for a in doc["annotations"]:
+        a.pop("occlusion")  # as `v2i dataset --no-occlusion` writes them
+    (bare / "annotations.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError) as exc:  # every unusable folder named at once, before any training
+        train([data, empty, bare], None, epochs=1, max_occlusion=0.75, **TINY)
+    text = str(exc.value)
+    assert f"{empty}: the dataset has no images" in text and f"{bare}: max_occlusion needs occlusion labels" in text
     w = tmp_path / "two.pt"
     assert main(["train-detector", "--data", str(data), "--data", str(tmp_path / "gone"), "--data",
                  str(tmp_path / "gone2"), "--out", str(w), "--epochs", "1"]) == 2

@@ -310,24 +310,28 @@ def loss_fn(outputs, targets, class_weights: torch.Tensor | None = None) -> tupl
     return total, {"heat": lh.item(), "size": ls.item(), "offset": lo.item()}
 
 
-def _check_dataset(folder, ds: Dataset, cut_rule: str, max_occlusion: float | None) -> None:
-    """Refuse a folder training cannot use, naming it and why, before any time is spent."""
+def _dataset_problems(folder, ds: Dataset, cut_rule: str, max_occlusion: float | None) -> list[str]:
+    """What makes a folder unusable for training, each naming the folder, so all are refused before any time
+    is spent (not inside a batch)."""
     if len(ds) == 0:
-        raise ValueError(f"{folder}: the dataset has no images")
+        return [f"{folder}: the dataset has no images"]
+    problems = []
     unknown = {t.label for s in ds.samples for t in s.truths} - set(ModelConfig().classes)
     if unknown:
-        raise ValueError(f"{folder}: labels {sorted(unknown)} are not among the model's classes")
+        problems.append(f"{folder}: labels {sorted(unknown)} are not among the model's classes")
     if cut_rule == "visible":
         try:
-            min_visible_pixels(ds.info)  # refused before training, not inside a batch
+            min_visible_pixels(ds.info)
         except ValueError as exc:
-            raise ValueError(f"{folder}: {exc}") from None
+            problems.append(f"{folder}: {exc}")
     if max_occlusion is not None and all(t.occlusion is None for s in ds.samples for t in s.truths):
-        raise ValueError(f"{folder}: max_occlusion needs occlusion labels, and this dataset has none "
-                         f"(it was rendered with --no-occlusion)")
+        problems.append(f"{folder}: max_occlusion needs occlusion labels, and this dataset has none "
+                        f"(it was rendered with --no-occlusion)")
+    return problems
 
 
-def train(data: str | Path | Sequence[str | Path], out: str | Path | None = None, *, epochs: int = 30, seed: int = 0, threads: int = 2,
+def train(data: str | Path | Sequence[str | Path], out: str | Path | None = None, *, epochs: int = 30, seed: int = 0,
+          threads: int = 2,
           batch_size: int = 8, lr: float = 2e-3, width: int = 16, input_size: tuple[int, int] = (320, 240),
           augment: bool = True, cache_images: bool = True, crop: tuple[int, int] | None = None,
           heads: str = "separable", command: str | None = None, log=None, init: str | Path | dict | None = None,
@@ -390,8 +394,10 @@ def train(data: str | Path | Sequence[str | Path], out: str | Path | None = None
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
     folders = [data] if isinstance(data, (str, Path)) else list(data)
     sets = [load_dataset(f) for f in folders]
-    for folder, part in zip(folders, sets):
-        _check_dataset(folder, part, cut_rule, max_occlusion)
+    problems = [p for folder, part in zip(folders, sets) for p in _dataset_problems(folder, part, cut_rule,
+                                                                                   max_occlusion)]
+    if problems:
+        raise ValueError("; ".join(problems))
     if cut_rule == "visible" and len({min_visible_pixels(p.info) for p in sets}) > 1:
         raise ValueError(f"{', '.join(map(str, folders))}: cut_rule 'visible' needs one labelling threshold, and "
                          f"the folders' info.min_visible_pixels differ")
