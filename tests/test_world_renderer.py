@@ -30,7 +30,7 @@ def test_auto_is_the_cpu_renderer_without_a_gpu(monkeypatch):
     assert name == "tiny" and frame.rgb.shape == (480, 640, 3)
 
 
-_COMPARE = """
+_EGL_CHILD = """
 import sys, numpy as np
 sys.path.insert(0, {root!r})
 from tests.test_world_renderer import _render_env
@@ -38,6 +38,24 @@ try:
     name, egl, ids = _render_env("egl")
 except RuntimeError as exc:
     print("SKIP", exc); sys.exit(0)
+"""
+
+
+def _egl_child(body: str):
+    """Run `body` in a child process after it drew the scene with EGL (`name`, `egl`, `ids` bound); skip where
+    EGL will not load. A child: Mesa's EGL can corrupt the heap at interpreter exit after the plugin ran, and
+    the plugin writes to the real descriptor 1, which pytest's capture would hide."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _EGL_CHILD.format(root=str(ROOT)) + body], capture_output=True,
+                          text=True, timeout=120, cwd=ROOT)
+    if proc.stdout.startswith("SKIP"):
+        pytest.skip(f"EGL not available here: {proc.stdout.split('SKIP', 1)[1].strip()}")
+    return proc
+
+
+_COMPARE = """
 _, tiny, _ = _render_env("tiny")
 for vehicle, body in ids.items():
     a, b = egl.seg == body, tiny.seg == body
@@ -57,14 +75,7 @@ def _render_env(name):
 
 
 def test_egl_draws_the_same_vehicles_as_the_cpu_renderer():
-    """In a child process: Mesa's EGL can corrupt the heap at interpreter exit after the plugin ran."""
-    import subprocess
-    import sys
-
-    out = subprocess.run([sys.executable, "-c", _COMPARE.format(root=str(ROOT))], capture_output=True, text=True,
-                         timeout=120, cwd=ROOT).stdout
-    if "SKIP" in out:
-        pytest.skip(f"EGL not available here: {out.split('SKIP', 1)[1].strip()}")
+    out = _egl_child(_COMPARE).stdout
     rows = [line.split() for line in out.splitlines() if line.startswith("egl ")]
     assert {r[1] for r in rows} == {"cav", "ev"}, out
     for _, vehicle, iou in rows:
@@ -78,27 +89,13 @@ def test_unknown_renderer_is_refused_by_name(monkeypatch):
 
 
 _STDOUT = """
-import sys
-sys.path.insert(0, {root!r})
-from tests.test_world_renderer import _render_env
-try:
-    name, frame, _ = _render_env("egl")
-except RuntimeError as exc:
-    print("SKIP", exc); sys.exit(0)
-print("frame", name, frame.rgb.shape)
+print("frame", name, egl.rgb.shape)
 """
 
 
 def test_egl_plugin_chatter_goes_to_stderr_not_into_stdout():
     """pybullet's EGL plugin printf's its GL strings on load, first frames and close: on stdout they broke
-    `v2i eval-tracker --json` (the JSON began with 'Loaded EGL 1.5'). A child process: the plugin writes to
-    the real descriptor 1, which pytest's capture would hide."""
-    import subprocess
-    import sys
-
-    proc = subprocess.run([sys.executable, "-c", _STDOUT.format(root=str(ROOT))], capture_output=True, text=True,
-                          timeout=120, cwd=ROOT)
-    if proc.stdout.startswith("SKIP"):
-        pytest.skip(f"EGL not available here: {proc.stdout.split('SKIP', 1)[1].strip()}")
+    `v2i eval-tracker --json` (the JSON began with 'Loaded EGL 1.5')."""
+    proc = _egl_child(_STDOUT)
     assert proc.stdout == "frame egl (480, 640, 3)\n", proc.stdout[:400]
     assert "GL_VENDOR" in proc.stderr and "Destroy EGL OpenGL window" in proc.stderr  # kept, where logs go
