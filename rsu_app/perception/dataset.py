@@ -71,6 +71,8 @@ class Dataset:
     categories: dict[int, str]
     info: dict
     parts: list["Dataset"] = field(default_factory=list)  # the folders a joined set was made of (join_datasets)
+    # digest() reads every image; a training run asks for it twice (the joined set's and each folder's)
+    _digest: str | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.samples)
@@ -82,13 +84,16 @@ class Dataset:
     def digest(self) -> str:
         """sha256 over annotations.json and every image's bytes: names the exact data a model saw. A joined
         set's digest is the sha256 of its parts' digests, in order, joined by '+'."""
-        if self.parts:
-            return hashlib.sha256("+".join(self.part_digests()).encode()).hexdigest()
-        h = hashlib.sha256((self.root / "annotations.json").read_bytes())
-        for s in self.samples:
-            h.update(s.path.name.encode())
-            h.update(s.path.read_bytes())
-        return h.hexdigest()
+        if self._digest is None:
+            if self.parts:
+                self._digest = hashlib.sha256("+".join(self.part_digests()).encode()).hexdigest()
+            else:
+                h = hashlib.sha256((self.root / "annotations.json").read_bytes())
+                for s in self.samples:
+                    h.update(s.path.name.encode())
+                    h.update(s.path.read_bytes())
+                self._digest = h.hexdigest()
+        return self._digest
 
 
 def join_datasets(parts: list[Dataset]) -> Dataset:
