@@ -99,3 +99,52 @@ def test_egl_plugin_chatter_goes_to_stderr_not_into_stdout():
     proc = _egl_child(_STDOUT)
     assert proc.stdout == "frame egl (480, 640, 3)\n", proc.stdout[:400]
     assert "GL_VENDOR" in proc.stderr and "Destroy EGL OpenGL window" in proc.stderr  # kept, where logs go
+
+
+def _pixel_offset(name: str) -> np.ndarray:
+    """Median (du, dv) of where `name` draws 30 small spheres at known points, less where the camera model
+    (Camera.project, principal point at the picture's centre, pixel k spanning [k, k+1)) puts them."""
+    import os
+
+    import pybullet as pb
+
+    from master.world.layout import CameraSpec, WorldLayout
+
+    os.environ[renderer.ENV] = name
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-6, 6, 30), rng.uniform(10, 25, 30), rng.uniform(0.5, 6, 30)])
+    spec = CameraSpec("c", 0.0, 0.0, 5.0, yaw=90.0, pitch=-10.0, width=640, height=480, fov_deg=60.0)
+    with World(WorldLayout(cameras=[spec])) as w:
+        client = w.scene.client
+        shape = pb.createVisualShape(pb.GEOM_SPHERE, radius=0.2, physicsClientId=client)
+        ids = [pb.createMultiBody(0, -1, shape, p.tolist(), physicsClientId=client) for p in points]
+        frame = w.cameras["c"].render()
+        uv, _ = w.cameras["c"].project(points)
+    offsets = []
+    for body, at in zip(ids, uv):
+        v, u = np.nonzero(frame.seg == body)
+        assert len(u) > 30, (body, len(u))  # every sphere is whole in the picture: 30-250 pixels
+        offsets.append([u.mean() + 0.5 - at[0], v.mean() + 0.5 - at[1]])
+    return np.median(offsets, axis=0)
+
+
+_OFFSET = """
+from tests.test_world_renderer import _pixel_offset
+print("offset", *_pixel_offset("egl"))
+"""
+
+
+def test_where_each_renderer_draws_a_point():
+    """EGL draws a point where the pinhole model projects it (to 0.1 px); TinyRenderer draws the whole picture
+    half a pixel right and half a pixel up (measured +0.52 / -0.51 px). The frames keep the one camera model
+    (principal point at the centre), so TinyRenderer's boxes sit half a pixel off the geometry: about 0.3 m
+    along the ray for a vehicle 30 m from a 6 m pole, as much as a box edge's own rounding to whole pixels
+    there. Not corrected (a frame's K would then depend on its renderer); this test says when pybullet
+    moves either renderer."""
+    du, dv = _pixel_offset("tiny")
+    assert abs(du - 0.5) < 0.1 and abs(dv + 0.5) < 0.1, (du, dv)
+    out = _egl_child(_OFFSET).stdout
+    rows = [line.split()[1:] for line in out.splitlines() if line.startswith("offset ")]
+    assert len(rows) == 1, out
+    du, dv = (float(x) for x in rows[0])
+    assert abs(du) < 0.1 and abs(dv) < 0.1, (du, dv)
