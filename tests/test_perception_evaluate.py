@@ -39,6 +39,10 @@ def test_perfect_and_empty():
     r = evaluate_detections(ds, [[], []])
     assert r.ap50["overall"] == 0.0
     assert r.recall_by_distance[-1]["bin"] == "unknown" and r.recall_by_distance[-1]["recall"] == 0.0
+    assert r.renderer is None and " drawn by " not in r.table()
+    ds.renderer = "egl"  # a set's render.json: the report says which renderer's pictures it scored
+    r = evaluate_detections(ds, perfect)
+    assert r.renderer == "egl" and r.to_dict()["renderer"] == "egl" and "2 images drawn by egl" in r.table()
 
 
 def test_false_positive_ranked_first_hand_computed():

@@ -675,10 +675,12 @@ def test_training_on_several_folders_joins_them_and_records_each(data, tmp_path,
     from master.cli import main
 
     other = write_dataset(tmp_path / "other", n_images=5, seed=11, max_vehicles=2)
+    (other / "render.json").write_text(json.dumps({"renderer": "egl", "frames": {"egl": 5}}))  # as `v2i dataset`
     joined = train([data, other], None, epochs=1, seed=0, **TINY)["training"]
     one, two = load_dataset(data).digest(), load_dataset(other).digest()
     assert joined["images"] == 17
     assert [(d["sha256"], d["images"]) for d in joined["datasets"]] == [(one, 12), (two, 5)]
+    assert [d["renderer"] for d in joined["datasets"]] == [None, "egl"]  # the toy set says nothing
     assert joined["dataset_sha256"] == hashlib.sha256(f"{one}+{two}".encode()).hexdigest()
     swapped = train([other, data], None, epochs=1, seed=0, **TINY)["training"]
     assert swapped["dataset_sha256"] != joined["dataset_sha256"]  # the order is part of what was trained on

@@ -15,7 +15,7 @@ from master.cli import main
 from master.scenario.loader import load_scenario
 from master.world.camera import Lighting
 from master.world.dataset import (CATEGORY_ID, DatasetError, HELDOUT, TRAIN, PlacedVehicle, Sample, draw_sample,
-                                  make_dataset, rectangles_overlap, render_sample)
+                                  make_dataset, rectangles_overlap, render_sample, render_summary)
 from master.world.layout import VehicleSpec
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -239,3 +239,34 @@ def test_wide_brackets_heldout_on_every_side_and_never_touches_it(layout):
     assert evs and all(any(lo <= e.length <= hi for lo, hi in WIDE.ev_length) for e in evs)
     ambient = [s.lighting.ambient for s in samples]
     assert min(ambient) < 0.45 or max(ambient) > 0.8  # the wider light draw, not the standard one
+
+
+def test_render_json_names_what_drew_the_images_and_stays_out_of_the_digest(small_dataset, tmp_path):
+    """The two renderers' pictures differ (a detector trained on one lost 0.05 AP on the other), so a set says
+    which drew it; render.json is not part of `Dataset.digest()`, so the sets recorded before it keep theirs."""
+    import shutil
+
+    from rsu_app.perception.dataset import DatasetError, join_datasets, load_dataset
+
+    out, coco = small_dataset
+    drawn = {json.loads(line)["renderer"] for line in (out / "frames.jsonl").read_text().splitlines()}
+    assert len(drawn) == 1 and drawn <= {"tiny", "egl"}, drawn
+    (name,) = drawn
+    assert json.loads((out / "render.json").read_text()) == {"renderer": name, "frames": {name: 6}}
+    assert "renderer" not in (out / "annotations.json").read_text()
+    ds = load_dataset(out)
+    assert ds.renderer == name
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    (copy / "render.json").unlink()
+    bare = load_dataset(copy)
+    assert bare.renderer is None and bare.digest() == ds.digest()  # the file is provenance, not content
+    assert join_datasets([ds, bare]).renderer is None  # one folder does not say: the whole does not
+    (copy / "render.json").write_text(json.dumps({"renderer": "egl" if name == "tiny" else "tiny"}))
+    assert join_datasets([ds, load_dataset(copy)]).renderer == "mixed"
+    assert render_summary(["egl", "tiny", "egl"]) == {"renderer": "mixed", "frames": {"egl": 2, "tiny": 1}}
+    for bad, why in (("{not json", "not a JSON object"), ('{"renderer": 3}', "'renderer' must be a name"),
+                     ("[1, 2]", "not a JSON object")):
+        (copy / "render.json").write_text(bad)
+        with pytest.raises(DatasetError, match=f"{copy / 'render.json'}: {why}"):
+            load_dataset(copy)

@@ -21,6 +21,7 @@ from master.world.quiet_pybullet import gl_to_stderr
 from master.world.quiet_pybullet import pybullet as pb
 
 from master.world.layout import CameraSpec
+from master.world.renderer import name_of as renderer_name
 
 NEAR, FAR = 0.1, 500.0
 
@@ -60,6 +61,7 @@ class Frame:
     K: np.ndarray  # 3x3 intrinsics
     R_wc: np.ndarray  # camera axes in world coordinates (columns x right, y down, z forward)
     position: np.ndarray  # optical centre in the world (m)
+    renderer: str = ""  # which renderer drew it ("tiny" or "egl"; their pictures differ: docs/perception.md)
 
 
 class Camera:
@@ -147,6 +149,6 @@ class Camera:
             seg = None
         self.render_times.append(time.perf_counter() - t0)
         frame = Frame(self.name, self.frame_id, t, rgb, seg, self.projection_matrix(), self.K.copy(),
-                      self.R_wc.copy(), self.position.copy())
+                      self.R_wc.copy(), self.position.copy(), renderer_name(self.renderer))
         self.frame_id += 1
         return frame

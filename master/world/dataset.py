@@ -23,7 +23,10 @@ Output folder (COCO-style, documented in the README):
     DIR/annotations.json     {"info", "categories", "images", "annotations"}
     DIR/backgrounds/000000.png  with --backgrounds: the same view without vehicles
     DIR/frames.jsonl         one line per finished frame, written as it goes
-                             (an interrupted run keeps what it rendered)
+                             (an interrupted run keeps what it rendered), with the renderer that drew it
+    DIR/render.json          {"renderer": "tiny" | "egl", "frames": {name: count}}: what drew the images.
+                             Not in annotations.json, so `Dataset.digest()` (annotations and images) of a
+                             set is what it was before the file existed
 
 An annotation's `bbox` is the visible box (pixels of the vehicle in the
 renderer's segmentation mask), `full_bbox` the projected 3D box; `ignore`
@@ -338,6 +341,7 @@ def _frame_record(job: DatasetJob, index: int) -> dict[str, Any]:
                   "lighting": {"direction": list(sample.lighting.direction), "ambient": sample.lighting.ambient,
                                "diffuse": sample.lighting.diffuse, "shadow": sample.lighting.shadow}},
         "annotations": labels,
+        "renderer": frame.renderer,
     }
 
 
@@ -387,10 +391,24 @@ def make_dataset(layout: WorldLayout, out: Path, frames: int, seed: int, variant
             log.flush()
             records.append(record)
     coco = _coco(records, job, frames)
-    tmp = out / "annotations.json.tmp"
-    tmp.write_text(json.dumps(coco))
-    os.replace(tmp, out / "annotations.json")
+    _write_json(out / "render.json", render_summary(r["renderer"] for r in records))
+    _write_json(out / "annotations.json", coco)
     return coco
+
+
+def render_summary(renderers: Iterable[str]) -> dict[str, Any]:
+    """`render.json`'s content: the renderer of every frame ("mixed" where they differ, e.g. a worker whose
+    EGL would not load fell back to TinyRenderer) and how many frames each drew."""
+    from collections import Counter
+
+    counts = Counter(renderers)
+    return {"renderer": next(iter(counts)) if len(counts) == 1 else "mixed", "frames": dict(sorted(counts.items()))}
+
+
+def _write_json(path: Path, doc: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(doc))
+    os.replace(tmp, path)
 
 
 def _records(job: DatasetJob, frames: int, jobs: int, progress: bool) -> Iterable[dict[str, Any]]:

@@ -44,6 +44,11 @@ def choose(configured: str = "auto") -> str:
     return requested() or configured
 
 
+def name_of(constant: int) -> str:
+    """The name of a pybullet renderer constant `attach` returned."""
+    return "egl" if constant == pb.ER_BULLET_HARDWARE_OPENGL else "tiny"
+
+
 def attach(client: int, name: str | None = None) -> tuple[str, int]:
     """Set up the renderer on a DIRECT client: (name used, pybullet renderer constant)."""
     name = name or choose()

@@ -71,6 +71,7 @@ class Dataset:
     categories: dict[int, str]
     info: dict
     parts: list["Dataset"] = field(default_factory=list)  # the folders a joined set was made of (join_datasets)
+    renderer: str | None = None  # what drew the images (render.json: "tiny", "egl", "mixed"); None: not recorded
     # digest() reads every image; a training run asks for it twice (the joined set's and each folder's)
     _digest: str | None = field(default=None, init=False, repr=False, compare=False)
 
@@ -109,7 +110,10 @@ def join_datasets(parts: list[Dataset]) -> Dataset:
                                f"{first.categories}; a label must mean one class in every folder")
     if len(parts) == 1:
         return first
-    return Dataset(first.root, [s for d in parts for s in d.samples], first.categories, first.info, parts)
+    names = {d.renderer for d in parts}
+    renderer = names.pop() if len(names) == 1 else (None if None in names else "mixed")
+    return Dataset(first.root, [s for d in parts for s in d.samples], first.categories, first.info, parts,
+                   renderer)
 
 
 def load_dataset(root: str | Path) -> Dataset:
@@ -155,4 +159,18 @@ def load_dataset(root: str | Path) -> Dataset:
             raise DatasetError(f"{ann_path}: image {im['file_name']!r} not found under {root}")
         samples.append(Sample(int(im["id"]), path, int(im["width"]), int(im["height"]), by_image[int(im["id"])],
                               im.get("camera"), im.get("t"), im, root))
-    return Dataset(root, samples, categories, doc.get("info", {}))
+    return Dataset(root, samples, categories, doc.get("info", {}), renderer=_renderer(root))
+
+
+def _renderer(root: Path) -> str | None:
+    """render.json's renderer (`v2i dataset` writes it; sets made before it existed have none)."""
+    path = root / "render.json"
+    if not path.is_file():
+        return None
+    try:
+        name = json.loads(path.read_text()).get("renderer")
+    except (json.JSONDecodeError, AttributeError) as exc:
+        raise DatasetError(f"{path}: not a JSON object ({exc})") from exc
+    if not isinstance(name, str) or not name:
+        raise DatasetError(f"{path}: 'renderer' must be a name such as \"tiny\" or \"egl\", got {name!r}")
+    return name

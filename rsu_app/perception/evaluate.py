@@ -103,6 +103,7 @@ class Report:
     ms_per_frame: dict[str, float] = field(default_factory=dict)
     ap50_interval: dict[str, list[float]] = field(default_factory=dict)  # 95 % bootstrap interval; {} when off
     bootstrap: int = 0  # image resamples behind ap50_interval
+    renderer: str | None = None  # what drew the set's images (its render.json), None where not recorded
 
     def to_dict(self) -> dict:
         from dataclasses import asdict
@@ -111,7 +112,8 @@ class Report:
 
     def table(self) -> str:
         f = lambda x: "  n/a" if not math.isfinite(x) else f"{x:5.3f}"  # noqa: E731
-        lines = [f"detector {self.detector}: {self.images} images, {self.fps:.1f} FPS "
+        drawn = f" drawn by {self.renderer}" if self.renderer else ""
+        lines = [f"detector {self.detector}: {self.images} images{drawn}, {self.fps:.1f} FPS "
                  f"(p50 {self.ms_per_frame.get('p50', float('nan')):.1f} ms)",
                  f"{'class':<10} {'truths':>6} {'AP50':>6} {'AP':>6}"
                  + (f"  AP50 95 % interval ({self.bootstrap} image resamples)" if self.ap50_interval else "")]
@@ -226,7 +228,7 @@ def evaluate_detections(ds: Dataset, detections: list[list[Detection]], detector
     return Report(detector, len(ds.samples), n_truth, ap50, ap,
                   _recall_bins(found_dist, DISTANCE_BINS), _recall_bins(found_occ, OCCLUSION_BINS), by_class,
                   ap50_interval=bootstrap_ap50(per_image, bootstrap, seed) if bootstrap else {},
-                  bootstrap=bootstrap)
+                  bootstrap=bootstrap, renderer=ds.renderer)
 
 
 def detect_all(detector: Detector, ds: Dataset, warmup: int = 2) -> tuple[list[list[Detection]], list[float]]:

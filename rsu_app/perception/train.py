@@ -458,8 +458,8 @@ def train(data: str | Path | Sequence[str | Path], out: str | Path | None = None
             "augment": augment, "crop": list(crop) if crop else None, "width": width, "heads": heads,
             "input_size": list(input_size),
             "dataset": ", ".join(str(Path(f).resolve()) for f in folders), "dataset_sha256": ds.digest(),
-            "datasets": [{"path": str(Path(f).resolve()), "sha256": digest, "images": len(p), "info": p.info}
-                         for f, p, digest in zip(folders, sets, ds.part_digests())],
+            "datasets": [{"path": str(Path(f).resolve()), "sha256": digest, "images": len(p), "info": p.info,
+                          "renderer": p.renderer} for f, p, digest in zip(folders, sets, ds.part_digests())],
             "max_occlusion": max_occlusion, "class_weights": class_weights or None, "occluders": occluders,
             "heat_sigma": heat_sigma, "context": context, "deep_width": deep_width,
             "coords": coords, "cut_rule": cut_rule,
