@@ -422,3 +422,29 @@ def test_cli_info_missing_file(capsys, tmp_path):
 def test_cli_build_fmus_up_to_date(capsys, fmu_dir):
     assert main(["build-fmus", "--out", str(fmu_dir)]) == 0
     assert "up to date VehicleDynamics" in capsys.readouterr().out
+
+
+def test_a_signal_between_fmu_calls_ends_the_run_as_interrupted_not_as_the_fmus_failure():
+    """The loop hands whatever a doStep raises to that FMU (`step_failed`: "failed in doStep"); a signal
+    handled in the Python around the call (fmpy's wrapper, the loop itself) raises Interrupted there, which
+    must pass through as the interrupt it is (seen once: "instance 'car' failed in doStep at t = 0.29 s: ")."""
+    from master.errors import SimulationError
+    from master.run.algorithm import do_steps
+    from master.run.interrupts import Interrupted
+
+    class Instance:
+        time = 0.0
+
+        def step_failed(self, exc, t, h):
+            raise SimulationError("car", t, "doStep", str(exc))
+
+    def signalled(t, h):
+        raise Interrupted()
+
+    def broken(t, h):
+        raise RuntimeError("fmi2Error")
+
+    with pytest.raises(Interrupted):
+        do_steps([(Instance(), signalled, 0.01)], 0.29)
+    with pytest.raises(SimulationError, match="failed in doStep at t = 0.29 s: fmi2Error"):  # a real failure still is
+        do_steps([(Instance(), broken, 0.01)], 0.29)
