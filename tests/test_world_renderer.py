@@ -104,17 +104,15 @@ def test_egl_plugin_chatter_goes_to_stderr_not_into_stdout():
 def _pixel_offset(name: str) -> np.ndarray:
     """Median (du, dv) of where `name` draws 30 small spheres at known points, less where the camera model
     (Camera.project, principal point at the picture's centre, pixel k spanning [k, k+1)) puts them."""
-    import os
-
     import pybullet as pb
 
     from master.world.layout import CameraSpec, WorldLayout
 
-    os.environ[renderer.ENV] = name
     rng = np.random.default_rng(0)
     points = np.column_stack([rng.uniform(-6, 6, 30), rng.uniform(10, 25, 30), rng.uniform(0.5, 6, 30)])
     spec = CameraSpec("c", 0.0, 0.0, 5.0, yaw=90.0, pitch=-10.0, width=640, height=480, fov_deg=60.0)
-    with World(WorldLayout(cameras=[spec])) as w:
+    with World(WorldLayout(cameras=[spec]), renderer=name) as w:  # not through the environment: the test
+        assert w.scene.renderer_name == name                        # process's other tests keep theirs
         client = w.scene.client
         shape = pb.createVisualShape(pb.GEOM_SPHERE, radius=0.2, physicsClientId=client)
         ids = [pb.createMultiBody(0, -1, shape, p.tolist(), physicsClientId=client) for p in points]
