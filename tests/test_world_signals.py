@@ -114,22 +114,23 @@ def expected_rgba(state: int) -> dict[str, tuple]:
 def lit_in_frame(world: World, camera, frame, head: str) -> tuple[str, ...]:
     """The lamps that look lit in the frame: brightest pixel of each lamp at its projected centre
     (3x3 window), lit when at least twice as bright as the darkest lamp."""
-    bright = {}
-    for lamp in signals.LAMPS:
-        (uv,), depth = camera.project(np.array([world.scene.lamp_centre(head, lamp)]))
-        assert depth[0] > 0
-        u, v = int(uv[0]), int(uv[1])
-        bright[lamp] = int(frame.rgb[v - 1:v + 2, u - 1:u + 2].max())
+    bright = {lamp: int(_lamp_pixels(world, camera, frame, head, lamp).max()) for lamp in signals.LAMPS}
     floor = min(bright.values())
     return tuple(k for k in signals.LAMPS if bright[k] >= 2 * floor and bright[k] > 80)
+
+
+def _lamp_pixels(world: World, camera, frame, head: str, lamp: str) -> np.ndarray:
+    """The 3x3 window of RGB pixels (9, 3) around where the lamp's centre projects."""
+    (uv,), depth = camera.project(np.array([world.scene.lamp_centre(head, lamp)]))
+    assert depth[0] > 0
+    u, v = int(uv[0]), int(uv[1])
+    return frame.rgb[v - 1:v + 2, u - 1:u + 2].reshape(-1, 3)
 
 
 def lamp_hue(frame, camera, world: World, head: str, lamp: str) -> str:
     """The colour a lamp's brightest pixel reads as: red (red well above green), yellow (red and green
     both well above blue) or green (green above red)."""
-    (uv,), _ = camera.project(np.array([world.scene.lamp_centre(head, lamp)]))
-    u, v = int(uv[0]), int(uv[1])
-    window = frame.rgb[v - 1:v + 2, u - 1:u + 2].reshape(-1, 3).astype(int)
+    window = _lamp_pixels(world, camera, frame, head, lamp).astype(int)
     r, g, b = window[window.sum(axis=1).argmax()]
     if g > r:
         return "green"
