@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from rsu_app.perception.allocator import keep_freed_memory
 from rsu_app.perception.detector import DEFAULT_THREADS, Detection, DetectorError, check_frame, default_weights
 from rsu_app.perception.model import FORMAT, CenterNet, ModelConfig, decode, fuse_for_inference, preprocess
 
@@ -86,6 +87,7 @@ class TorchDetector:
         if not isinstance(threads, int) or threads < 1:
             raise DetectorError(f"threads must be an integer >= 1, got {threads!r}")
         torch.set_num_threads(threads)  # process-wide: torch has no per-module thread count
+        keep_freed_memory()  # process-wide too: a frame's feature maps reused, not mapped afresh (its docstring)
         self.threads = threads
         if device == "auto":
             device = "cuda" if torch.cuda.is_available() else "cpu"

@@ -1,0 +1,67 @@
+"""Keep freed memory in the process: glibc's malloc set for loops that allocate the same large buffers each frame.
+
+Why: a camera frame and its network's feature maps are buffers of one to several MB, made and freed every
+frame. glibc serves allocations that large with a fresh mmap (its threshold moves up to 32 MB only after such
+a block is freed) and hands the top of its heap back to the kernel once more than twice that lies free, so
+frame after frame the kernel maps and zeroes new pages. Measured on this project's 2-core machine, 85 frames
+of a 640x480-input network (RECIPE.md's stage 15) on one torch thread: 752,000 page faults, 2.0 s of kernel
+time beside 4.7 s of user time, 44 ms a frame; with the thresholds below 73,000 faults, 0.4 s, 20 ms a frame,
+the same detections (benchmarks/allocator.py: torch 1.9-2.2x faster, onnx unchanged). The cost is memory the
+process keeps after a peak (up to `trim_threshold` at the heap's top), which a long-running app would map
+again anyway.
+
+The torch detector calls `keep_freed_memory()` when it is built (process-wide, as its thread count): the RSU
+app, `v2i eval-detector` and the benchmarks get it alike. Where it was measured to make no difference it is
+not called: ONNX Runtime keeps its own arena, and the sensor workers' renders and the master's loop ran at the
+same speed with it (benchmarks/allocator.py; benchmarks/world.py --quick with glibc's variables set). A user
+who set glibc's own variables (MALLOC_MMAP_THRESHOLD_, MALLOC_TRIM_THRESHOLD_) keeps them; V2I_MALLOC=system
+leaves glibc as it is. On another C library (musl, macOS) it does nothing and says so in its return value.
+"""
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+
+M_TRIM_THRESHOLD = -1  # glibc's mallopt parameter numbers (malloc.h)
+M_MMAP_THRESHOLD = -3
+MMAP_THRESHOLD = 64 * 1024 * 1024   # blocks below this come from the heap and are reused (a 1280x720 frame: 11 MB)
+TRIM_THRESHOLD = 256 * 1024 * 1024  # free memory kept at the heap's top before any goes back to the kernel
+ENV_OPT_OUT = "V2I_MALLOC"
+GLIBC_ENV = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
+
+_applied: str | None = None
+
+
+def keep_freed_memory(mmap_threshold: int = MMAP_THRESHOLD, trim_threshold: int = TRIM_THRESHOLD) -> str:
+    """Set glibc's mmap and trim thresholds for this process (once); returns what was done, in words."""
+    global _applied
+    if _applied is not None:
+        return _applied
+    if os.environ.get(ENV_OPT_OUT, "").strip().lower() == "system":
+        _applied = f"left as the C library has it ({ENV_OPT_OUT}=system)"
+        return _applied
+    if any(k in os.environ for k in GLIBC_ENV):
+        _applied = "left to the environment's " + ", ".join(k for k in GLIBC_ENV if k in os.environ)
+        return _applied
+    mallopt = _glibc_mallopt()
+    if mallopt is None:
+        _applied = "not glibc: left as the C library has it"
+        return _applied
+    ok = mallopt(M_MMAP_THRESHOLD, mmap_threshold) == 1 and mallopt(M_TRIM_THRESHOLD, trim_threshold) == 1
+    _applied = (f"glibc: mmap threshold {mmap_threshold >> 20} MiB, trim threshold {trim_threshold >> 20} MiB"
+                if ok else "glibc refused the thresholds: left as it was")
+    return _applied
+
+
+def _glibc_mallopt():
+    """glibc's mallopt, or None where the C library is another (no gnu_get_libc_version)."""
+    name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(name)
+        libc.gnu_get_libc_version  # noqa: B018  (only glibc has it)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError, TypeError):
+        return None
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return mallopt

@@ -1,0 +1,78 @@
+"""rsu_app.perception.allocator: freed frame-sized buffers stay in the process instead of being mapped afresh each frame.
+
+Counted in page faults (the kernel's count for the process, not a timing): a loop that makes and drops a
+640x480 frame's worth of float buffers faults again on a large share of their pages under glibc's defaults, and
+hardly at all once keep_freed_memory() has run. Each case runs in a fresh interpreter: the setting is the
+process's, and sticks.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from rsu_app.perception import allocator
+
+# make and drop, 60 times, the buffers of one frame through a network: 3.7 MB in, four 4.9 MB feature maps
+LOOP = """
+import json, resource, sys
+import numpy as np
+{setup}
+def frame():
+    x = np.ones((1, 3, 480, 640), np.float32)
+    maps = [np.ones((1, 16, 240, 320), np.float32) for _ in range(4)]
+    return float(x[0, 0, 0, 0] + sum(m[0, 0, 0, 0] for m in maps))
+frame()
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(60):
+    frame()
+print(json.dumps({{"faults": resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before, "said": said}}))
+"""
+
+
+def _run(setup: str, **env) -> dict:
+    full = {k: v for k, v in os.environ.items() if k not in (allocator.ENV_OPT_OUT, *allocator.GLIBC_ENV)}
+    full.update(env)
+    out = subprocess.run([sys.executable, "-c", LOOP.format(setup=setup)], capture_output=True, text=True,
+                         env=full, timeout=120)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+glibc = pytest.mark.skipif(allocator._glibc_mallopt() is None, reason="not glibc: keep_freed_memory does nothing here")
+KEEP = "from rsu_app.perception.allocator import keep_freed_memory\nsaid = keep_freed_memory()"
+
+
+@glibc
+def test_freed_frame_buffers_are_reused_not_faulted_in_again():
+    default = _run("said = None")
+    kept = _run(KEEP)
+    assert kept["said"].startswith("glibc: mmap threshold 64 MiB")
+    pages = 60 * (3 * 480 * 640 + 4 * 16 * 240 * 320) * 4 // 4096  # every page of every buffer, once per frame
+    assert default["faults"] > 0.3 * pages, default  # glibc's defaults: its trims give pages back, faulted again
+    assert kept["faults"] < 0.02 * pages, kept  # kept: the first frame's pages serve the rest
+
+
+@glibc
+def test_the_user_can_keep_glibcs_own_behaviour():
+    """V2I_MALLOC=system leaves glibc as it is; glibc's own variables, set by the user, are theirs to keep."""
+    pages = 60 * (3 * 480 * 640 + 4 * 16 * 240 * 320) * 4 // 4096
+    opted_out = _run(KEEP, V2I_MALLOC="system")
+    assert opted_out["said"] == "left as the C library has it (V2I_MALLOC=system)"
+    assert opted_out["faults"] > 0.3 * pages
+    theirs = _run(KEEP, MALLOC_TRIM_THRESHOLD_="0")
+    assert theirs["said"] == "left to the environment's MALLOC_TRIM_THRESHOLD_"
+
+
+def test_the_torch_detector_sets_it_when_built():
+    """The torch backend sets it (as it sets the thread count): a frame's feature maps are reused in the RSU
+    app, the evaluation and the benchmarks alike. ONNX Runtime keeps its own arena (benchmarks/allocator.py:
+    no change), so the onnx backend leaves the C library alone."""
+    said = {backend: _run(f"from rsu_app.perception import make_detector\nmake_detector({backend!r}, threads=1)\n"
+                          "from rsu_app.perception import allocator\nsaid = allocator._applied")["said"]
+            for backend in ("torch", "onnx")}
+    assert said["torch"] is not None and said["torch"].startswith(("glibc: mmap threshold", "not glibc")), said
+    assert said["onnx"] is None, said
