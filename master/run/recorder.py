@@ -35,14 +35,6 @@ FLUSH_S = 0.05  # wall seconds: the most recorded time a killed run can lose
 _NUMBERS = frozenset((float, int, bool))
 
 
-
-def write_text_atomically(path: Path, text: str) -> None:
-    """Write `path` beside itself and move it over the old one: a reader (or a run killed mid-write) never
-    sees a half-written file, only the old one or the new."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
 class RunRecorder:
     def __init__(self, run_dir: Path, columns: Sequence[str], clock=time.monotonic):
         self.run_dir = Path(run_dir)
@@ -63,7 +55,9 @@ class RunRecorder:
         (self.run_dir / RESOLVED).write_text(tomli_w.dumps(_toml_safe(resolved)))
 
     def write_metadata(self, metadata: dict[str, Any]) -> None:
-        write_text_atomically(self.run_dir / METADATA, json.dumps(metadata, indent=2, default=str) + "\n")
+        tmp = self.run_dir / (METADATA + ".tmp")
+        tmp.write_text(json.dumps(metadata, indent=2, default=str) + "\n")
+        os.replace(tmp, self.run_dir / METADATA)  # never a half-written file
 
     @property
     def rows(self) -> int:

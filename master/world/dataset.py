@@ -38,6 +38,7 @@ from __future__ import annotations
 import colorsys
 import json
 import math
+import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable
@@ -405,9 +406,9 @@ def render_summary(renderers: Iterable[str]) -> dict[str, Any]:
 
 
 def _write_json(path: Path, doc: dict[str, Any]) -> None:
-    from master.run.recorder import write_text_atomically
-
-    write_text_atomically(path, json.dumps(doc))
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(doc))
+    os.replace(tmp, path)
 
 
 def _records(job: DatasetJob, frames: int, jobs: int, progress: bool) -> Iterable[dict[str, Any]]:
