@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from bridges.geo import GeoOrigin
 from bridges.j2735.bsm import EmergencyInfo, surrogate_bsm, surrogate_temporary_id
 from bridges.security import PSID_SURROGATE_BSM, time64_us
-from bridges.v2x import DETECT_END, DETECT_START, ENCODE, FRAME, SEND, SIGN, stamp_ns, tx_key, unix_time
+from bridges.v2x import ENCODE, SEND, SIGN, stamp_ns, tx_key, unix_time
 from rsu_app.perception.geo import VEHICLE_SIZE
 from rsu_app.perception.tracker import TrackState
 from rsu_app.perception_stage import TrackStamps, covariance_ellipse
@@ -150,8 +150,7 @@ class BsmStage:
             st = stamps.get(s.id)
             marks = signed.marks()
             if st is not None:
-                marks = {FRAME: stamp_ns(st.frame), DETECT_START: stamp_ns(st.detect_start),
-                         DETECT_END: stamp_ns(st.detect_end), **marks}
+                marks = {**st.marks(), **marks}
             out.append(Transmission(self.key, signed.frame, signed.t_sign, marks, "bsm", bsm.temporary_id.hex(),
                                     signed.compute_s()))
             self.encode_s.append(signed.encode_s)

@@ -69,6 +69,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bridges.geo import GeoError
+from bridges.v2x import DETECT_END, DETECT_START, FRAME, stamp_ns
 from rsu_app.perception.detector import Detection, DetectorError
 from rsu_app.perception.geo import (BoxNoise, CameraModel, box_to_ground, cut_edges, ground_fix, leaving_edges, outline,
                                     rough_ground_point)
@@ -118,9 +119,16 @@ class FrameResult:
 
 @dataclass
 class TrackStamps:
+    """When the camera frame that last updated a track was taken, and when its detection started and ended."""
+
     frame: float
     detect_start: float
     detect_end: float
+
+    def marks(self) -> dict[str, int]:
+        """The frame's trace stamps (bridges.v2x) that a message about this track carries before its own."""
+        return {FRAME: stamp_ns(self.frame), DETECT_START: stamp_ns(self.detect_start),
+                DETECT_END: stamp_ns(self.detect_end)}
 
 
 class DetectionZone:

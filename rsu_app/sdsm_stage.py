@@ -44,7 +44,7 @@ import numpy as np
 from bridges.geo import GeoOrigin
 from bridges.j2735.sdsm import (HEADING_CONFIDENCE, MAX_OBJECTS, MEASUREMENT_TIME, POSITION_CONFIDENCE,
                                 SPEED_CONFIDENCE, DateTime, DetectedObject, Sdsm, VehicleDetails)
-from bridges.v2x import DETECT_END, DETECT_START, FRAME, stamp_ns, tx_key, unix_time
+from bridges.v2x import tx_key, unix_time
 from rsu_app.bsm_stage import Transmission, sign_encoded
 from rsu_app.perception.geo import VEHICLE_SIZE
 from rsu_app.perception.tracker import TrackState
@@ -169,8 +169,7 @@ class SdsmStage:
         seen = [stamps[s.id] for s in states if s.id in stamps]
         if seen:
             oldest = min(seen, key=lambda st: st.frame)
-            marks = {FRAME: stamp_ns(oldest.frame), DETECT_START: stamp_ns(oldest.detect_start),
-                     DETECT_END: stamp_ns(oldest.detect_end), **marks}
+            marks = {**oldest.marks(), **marks}
         self.encode_s.append(signed.encode_s)
         self.sign_s.append(signed.sign_s)
         self.sent += 1
