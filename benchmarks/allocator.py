@@ -1,17 +1,22 @@
-"""Benchmark: the torch and onnx detectors with glibc's malloc as it comes and as the torch detector sets it.
+"""Benchmark: frame loops with glibc's malloc as it comes beside bridges.allocator.keep_freed_memory.
 
     python benchmarks/allocator.py [--data data/heldout] [--frames 40] [--rounds 3] [--busy 0 1]
-                                   [--weights NAME=PT,ONNX ...] [--json PATH] [--quick]
+                                   [--weights NAME=PT,ONNX ...] [--renderers tiny egl] [--json PATH] [--quick]
 
-Each case is a fresh process (the allocator's setting is the process's and sticks): the detector (torch and
-onnx, 1 thread, the shipped weights and any given with --weights) runs over the first N frames of a
-`v2i dataset` folder (default data/heldout, as benchmarks/perception.py; 640x480), once with
-V2I_MALLOC=system (glibc's defaults: the peer) and once as the detectors build themselves (the torch one
-calls rsu_app.perception.allocator.keep_freed_memory), the two alternating, --rounds times, beside 0 and 1
-busy cores (the master and the renderer's share of a 2-core machine). Per case, the median over rounds of:
-ms per frame (the median frame, `detect()`: pre-process, network, decode), page faults per frame and kernel
-CPU ms per frame (getrusage over the frames). Ratio: glibc's ms / kept ms, per round, its median. Results go
-to JSON (default benchmarks/results/allocator.json). `--quick`: 20 frames, 2 rounds, no busy core.
+Each case is a fresh process (the allocator's setting is the process's and sticks), run once with
+V2I_MALLOC=system (glibc's defaults: the peer) and once as the project builds it (the torch detector and the
+world's camera call keep_freed_memory), the two alternating, --rounds times, beside 0 and 1 busy cores (the
+master and the renderer's share of a 2-core machine):
+
+    torch, onnx      the detector, 1 thread, the shipped weights and any given with --weights, over the first
+                     N frames of a `v2i dataset` folder (default data/heldout, as benchmarks/perception.py;
+                     640x480): `detect()`, pre-process, network, decode
+    camera-<name>    the case-study camera's 640x480 frame on that renderer (`Camera.render`, as a sensor
+                     worker draws it), N frames
+
+Per case, the median over rounds of: ms per frame (the median frame), page faults per frame and kernel CPU ms
+per frame (getrusage over the frames). Ratio: glibc's ms / kept ms, per round, its median. Results go to JSON
+(default benchmarks/results/allocator.json). `--quick`: 20 frames, 2 rounds, no busy core.
 """
 from __future__ import annotations
 
@@ -52,10 +57,38 @@ def child(backend: str, weights: str | None, data: Path, frames: int) -> dict:
         det.detect(im)
         times.append(time.perf_counter() - t0)
     r1 = resource.getrusage(resource.RUSAGE_SELF)
-    from rsu_app.perception import allocator
+    from bridges import allocator
 
     return {"ms": float(np.median(times)) * 1000, "faults_per_frame": (r1.ru_minflt - r0.ru_minflt) / len(images),
             "kernel_ms_per_frame": (r1.ru_stime - r0.ru_stime) * 1000 / len(images), "allocator": allocator._applied}
+
+
+def child_camera(renderer: str, frames: int) -> dict:
+    """One case in this process: the case-study camera's 640x480 frame (master.world.camera.Camera.render, as a
+    sensor worker draws it) on `renderer`: median ms per frame, page faults and kernel time per frame."""
+    import dataclasses
+
+    import numpy as np
+
+    from benchmarks.world import case_study_layout, pose_case_study
+    from master.world.world import World
+
+    layout = case_study_layout()
+    with World(dataclasses.replace(layout, cameras=layout.cameras[:1]), renderer=renderer) as w:
+        pose_case_study(w)
+        cam = next(iter(w.cameras.values()))
+        for _ in range(3):
+            cam.render()
+        r0, times = resource.getrusage(resource.RUSAGE_SELF), []
+        for _ in range(frames):
+            t0 = time.perf_counter()
+            cam.render()
+            times.append(time.perf_counter() - t0)
+        r1 = resource.getrusage(resource.RUSAGE_SELF)
+    from bridges import allocator
+
+    return {"ms": float(np.median(times)) * 1000, "faults_per_frame": (r1.ru_minflt - r0.ru_minflt) / frames,
+            "kernel_ms_per_frame": (r1.ru_stime - r0.ru_stime) * 1000 / frames, "allocator": allocator._applied}
 
 
 def run_case(backend: str, weights: str | None, mode: str, data: Path, frames: int) -> dict:
@@ -72,7 +105,10 @@ def run_case(backend: str, weights: str | None, mode: str, data: Path, frames: i
 def main() -> int:
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
         backend, weights, data, frames = sys.argv[2:6]
-        print(json.dumps(child(backend, None if weights == "-" else weights, Path(data), int(frames))))
+        if backend.startswith("camera-"):
+            print(json.dumps(child_camera(backend.removeprefix("camera-"), int(frames))))
+        else:
+            print(json.dumps(child(backend, None if weights == "-" else weights, Path(data), int(frames))))
         return 0
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
@@ -81,6 +117,8 @@ def main() -> int:
     ap.add_argument("--busy", type=int, nargs="+", default=[0, 1])
     ap.add_argument("--weights", nargs="*", default=[], metavar="NAME=PT,ONNX",
                     help="other weights beside the shipped ones: a name, the torch checkpoint and the onnx file")
+    ap.add_argument("--renderers", nargs="*", default=["tiny", "egl"],
+                    help="the case-study camera's frame on these renderers too (none: detectors only)")
     ap.add_argument("--json", type=Path, default=RESULTS / "allocator.json")
     ap.add_argument("--quick", action="store_true", help="20 frames, 2 rounds, no busy core")
     args = ap.parse_args()
@@ -100,28 +138,30 @@ def main() -> int:
     rows = []
     print(f"allocator benchmark: {args.frames} frames of {args.data}, {args.rounds} rounds, busy {args.busy}",
           file=sys.stderr)
+    cases = [(name, backend, weights) for name, pt, onnx in nets
+             for backend, weights in (("torch", pt), ("onnx", onnx))]
+    cases += [("world", f"camera-{r}", None) for r in args.renderers]
     for busy in args.busy:
         with BesideLoad(busy):
-            for name, pt, onnx in nets:
-                for backend, weights in (("torch", pt), ("onnx", onnx)):
-                    got = {m: [] for m in MODES}
-                    for r in range(args.rounds):
-                        for mode in (MODES if r % 2 == 0 else reversed(list(MODES))):
-                            got[mode].append(run_case(backend, weights, mode, args.data, args.frames))
-                    ratio = statistics.median(g["ms"] / k["ms"] for g, k in zip(got["glibc"], got["kept"]))
-                    for mode, runs in got.items():
-                        rows.append({"weights": name, "backend": backend, "busy_cores": busy, "malloc": mode,
-                                     "allocator": runs[0]["allocator"],
-                                     **{k: statistics.median(x[k] for x in runs)
-                                        for k in ("ms", "faults_per_frame", "kernel_ms_per_frame")},
-                                     "ms_rounds": [round(x["ms"], 2) for x in runs],
-                                     "ratio_glibc_over_kept": ratio})
-                    print(f"  {name} {backend} busy {busy}: {ratio:.2f}x", file=sys.stderr)
-    head = f"{'weights':10} {'backend':7} {'busy':>4} {'malloc':6} {'ms/frame':>9} {'FPS':>6} " \
+            for name, backend, weights in cases:
+                got = {m: [] for m in MODES}
+                for r in range(args.rounds):
+                    for mode in (MODES if r % 2 == 0 else reversed(list(MODES))):
+                        got[mode].append(run_case(backend, weights, mode, args.data, args.frames))
+                ratio = statistics.median(g["ms"] / k["ms"] for g, k in zip(got["glibc"], got["kept"]))
+                for mode, runs in got.items():
+                    rows.append({"weights": name, "backend": backend, "busy_cores": busy, "malloc": mode,
+                                 "allocator": runs[0]["allocator"],
+                                 **{k: statistics.median(x[k] for x in runs)
+                                    for k in ("ms", "faults_per_frame", "kernel_ms_per_frame")},
+                                 "ms_rounds": [round(x["ms"], 2) for x in runs],
+                                 "ratio_glibc_over_kept": ratio})
+                print(f"  {name} {backend} busy {busy}: {ratio:.2f}x", file=sys.stderr)
+    head = f"{'weights':10} {'case':11} {'busy':>4} {'malloc':6} {'ms/frame':>9} {'FPS':>6} " \
            f"{'faults/frame':>12} {'kernel ms':>9} {'glibc/kept':>10}"
     print(head + "\n" + "-" * len(head))
     for r in rows:
-        print(f"{r['weights']:10} {r['backend']:7} {r['busy_cores']:>4} {r['malloc']:6} {r['ms']:9.1f} "
+        print(f"{r['weights']:10} {r['backend']:11} {r['busy_cores']:>4} {r['malloc']:6} {r['ms']:9.1f} "
               f"{1000 / r['ms']:6.1f} {r['faults_per_frame']:12.0f} {r['kernel_ms_per_frame']:9.1f} "
               + (f"{r['ratio_glibc_over_kept']:10.2f}" if r["malloc"] == "kept" else f"{'-':>10}"))
     write_report(args.json, {"benchmark": "allocator", "machine": machine_info(), "data": str(args.data),

@@ -1,4 +1,4 @@
-"""rsu_app.perception.allocator: freed frame-sized buffers stay in the process instead of being mapped afresh each frame.
+"""bridges.allocator: freed frame-sized buffers stay in the process instead of being mapped afresh each frame.
 
 Counted in page faults (the kernel's count for the process, not a timing): a loop that makes and drops a
 640x480 frame's worth of float buffers faults again on a large share of their pages under glibc's defaults, and
@@ -11,10 +11,13 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
-from rsu_app.perception import allocator
+from bridges import allocator
+
+ROOT = Path(__file__).resolve().parent.parent
 
 # make and drop, 60 times, the buffers of one frame through a network: 3.7 MB in, four 4.9 MB feature maps
 LOOP = """
@@ -43,7 +46,7 @@ def _run(setup: str, **env) -> dict:
 
 
 glibc = pytest.mark.skipif(allocator._glibc_mallopt() is None, reason="not glibc: keep_freed_memory does nothing here")
-KEEP = "from rsu_app.perception.allocator import keep_freed_memory\nsaid = keep_freed_memory()"
+KEEP = "from bridges.allocator import keep_freed_memory\nsaid = keep_freed_memory()"
 
 
 @glibc
@@ -67,12 +70,18 @@ def test_the_user_can_keep_glibcs_own_behaviour():
     assert theirs["said"] == "left to the environment's MALLOC_TRIM_THRESHOLD_"
 
 
-def test_the_torch_detector_sets_it_when_built():
-    """The torch backend sets it (as it sets the thread count): a frame's feature maps are reused in the RSU
-    app, the evaluation and the benchmarks alike. ONNX Runtime keeps its own arena (benchmarks/allocator.py:
-    no change), so the onnx backend leaves the C library alone."""
-    said = {backend: _run(f"from rsu_app.perception import make_detector\nmake_detector({backend!r}, threads=1)\n"
-                          "from rsu_app.perception import allocator\nsaid = allocator._applied")["said"]
-            for backend in ("torch", "onnx")}
-    assert said["torch"] is not None and said["torch"].startswith(("glibc: mmap threshold", "not glibc")), said
+def test_the_torch_detector_and_the_camera_set_it_when_built():
+    """Where frames are made, the maker sets it when built (as torch's thread count is set): the torch
+    detector (RSU app, evaluation, benchmarks) and the world's camera (sensor workers, datasets).
+    ONNX Runtime keeps its own arena (benchmarks/allocator.py: no change), so the onnx backend leaves the C
+    library alone."""
+    tell = "\nfrom bridges import allocator\nsaid = allocator._applied"
+    scenario = ROOT / "scenarios" / "ima_world.toml"
+    said = {backend: _run(f"from rsu_app.perception import make_detector\nmake_detector({backend!r}, threads=1)"
+                          + tell)["said"] for backend in ("torch", "onnx")}
+    said["camera"] = _run("from master.scenario.loader import load_scenario\nfrom master.world.world import World\n"
+                          f"w = World(load_scenario({str(scenario)!r}).world, renderer='tiny')\n"
+                          "assert w.cameras\nw.close()" + tell)["said"]
+    for who in ("torch", "camera"):
+        assert said[who] is not None and said[who].startswith(("glibc: mmap threshold", "not glibc")), said
     assert said["onnx"] is None, said

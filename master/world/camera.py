@@ -17,6 +17,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from bridges.allocator import keep_freed_memory
 from master.world.quiet_pybullet import gl_to_stderr
 from master.world.quiet_pybullet import pybullet as pb
 
@@ -69,6 +70,7 @@ class Camera:
 
     def __init__(self, spec: CameraSpec, client: int | None, renderer: int = pb.ER_TINY_RENDERER):
         self.spec, self.client, self.renderer = spec, client, renderer
+        keep_freed_memory()  # process-wide: each frame's buffers reused, not faulted in afresh (its docstring)
         self.frame_id = 0
         self.render_times: list[float] = []
         yaw, pitch, roll = (math.radians(a) for a in (spec.yaw, spec.pitch, spec.roll))

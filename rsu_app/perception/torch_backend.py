@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rsu_app.perception.allocator import keep_freed_memory
+from bridges.allocator import keep_freed_memory
 from rsu_app.perception.detector import DEFAULT_THREADS, Detection, DetectorError, check_frame, default_weights
 from rsu_app.perception.model import FORMAT, CenterNet, ModelConfig, decode, fuse_for_inference, preprocess
 
@@ -53,7 +53,7 @@ def compile_network(net: CenterNet, device: torch.device) -> torch.nn.Module:
     Why opt-in (`compile=True`, the RSU app's `detector.compile`): on one CPU core the compiled network runs
     about 1.15x faster than the eager one (medians; benchmarks/perception.py measures both, and the outputs
     are the eager ones; it was 1.4-1.6x while the eager one still had glibc map its buffers afresh every
-    frame, rsu_app/perception/allocator.py), but compiling takes seconds when the detector is built (tens of seconds the
+    frame, bridges/allocator.py), but compiling takes seconds when the detector is built (tens of seconds the
     first time on a machine, a few from inductor's on-disk cache after) and needs a C++ compiler at run
     time, which a deployed box may not have."""
     W, H = net.cfg.input_size

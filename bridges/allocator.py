@@ -1,19 +1,21 @@
 """Keep freed memory in the process: glibc's malloc set for loops that allocate the same large buffers each frame.
 
-Why: a camera frame and its network's feature maps are buffers of one to several MB, made and freed every
+Why: a camera frame and a network's feature maps are buffers of one to several MB, made and freed every
 frame. glibc serves allocations that large with a fresh mmap (its threshold moves up to 32 MB only after such
 a block is freed) and hands the top of its heap back to the kernel once more than twice that lies free, so
 frame after frame the kernel maps and zeroes new pages. Measured on this project's 2-core machine, 85 frames
 of a 640x480-input network (RECIPE.md's stage 15) on one torch thread: 752,000 page faults, 2.0 s of kernel
 time beside 4.7 s of user time, 44 ms a frame; with the thresholds below 73,000 faults, 0.4 s, 20 ms a frame,
 the same detections (benchmarks/allocator.py: torch 1.9-2.2x faster, onnx unchanged). The cost is memory the
-process keeps after a peak (up to `trim_threshold` at the heap's top), which a long-running app would map
-again anyway.
+process keeps after a peak (up to `trim_threshold` at the heap's top), which a long-running app or world
+would map again anyway.
 
-The torch detector calls `keep_freed_memory()` when it is built (process-wide, as its thread count): the RSU
-app, `v2i eval-detector` and the benchmarks get it alike. Where it was measured to make no difference it is
-not called: ONNX Runtime keeps its own arena, and the sensor workers' renders and the master's loop ran at the
-same speed with it (benchmarks/allocator.py; benchmarks/world.py --quick with glibc's variables set). A user
+Called where frames are made, when the thing that makes them is built (process-wide, as the torch thread
+count is): the torch detector (the RSU app, `v2i eval-detector`, the benchmarks) and the world's camera
+(`master.world.camera.Camera`: the sensor workers, the master's loop when it renders itself, `v2i dataset`).
+The camera's 640x480 frame faulted 3,085 pages in each time (12 MB): kept, EGL's frame takes about 12 % less
+wall time and 7 % less CPU, TinyRenderer's 4-5 % less. Not called where it was measured to change nothing:
+ONNX Runtime keeps its own arena, a lidar scan faults a few dozen pages (benchmarks/allocator.py). A user
 who set glibc's own variables (MALLOC_MMAP_THRESHOLD_, MALLOC_TRIM_THRESHOLD_) keeps them; V2I_MALLOC=system
 leaves glibc as it is. On another C library (musl, macOS) it does nothing and says so in its return value.
 """
