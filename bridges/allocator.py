@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import difflib
 import os
 
 M_TRIM_THRESHOLD = -1  # glibc's mallopt parameter numbers (malloc.h)
@@ -30,17 +31,26 @@ M_MMAP_THRESHOLD = -3
 MMAP_THRESHOLD = 64 * 1024 * 1024   # blocks below this come from the heap and are reused (a 1280x720 frame: 11 MB)
 TRIM_THRESHOLD = 256 * 1024 * 1024  # free memory kept at the heap's top before any goes back to the kernel
 ENV_OPT_OUT = "V2I_MALLOC"
+CHOICES = ("kept", "system")  # V2I_MALLOC: the thresholds below (the default), or glibc as it comes
 GLIBC_ENV = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
 
 _applied: str | None = None
 
 
 def keep_freed_memory(mmap_threshold: int = MMAP_THRESHOLD, trim_threshold: int = TRIM_THRESHOLD) -> str:
-    """Set glibc's mmap and trim thresholds for this process (once); returns what was done, in words."""
+    """Set glibc's mmap and trim thresholds for this process (once); returns what was done, in words.
+
+    Raises ValueError for a V2I_MALLOC that is neither "kept" nor "system" (a typo would otherwise measure
+    the setting the user meant to turn off)."""
     global _applied
     if _applied is not None:
         return _applied
-    if os.environ.get(ENV_OPT_OUT, "").strip().lower() == "system":
+    choice = os.environ.get(ENV_OPT_OUT, "").strip().lower() or "kept"
+    if choice not in CHOICES:
+        near = difflib.get_close_matches(choice, CHOICES, n=1)
+        raise ValueError(f"{ENV_OPT_OUT}={os.environ[ENV_OPT_OUT]!r}: not one of {', '.join(CHOICES)}"
+                         + (f" (did you mean {near[0]!r}?)" if near else ""))
+    if choice == "system":
         _applied = f"left as the C library has it ({ENV_OPT_OUT}=system)"
         return _applied
     if any(k in os.environ for k in GLIBC_ENV):

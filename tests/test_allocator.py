@@ -70,6 +70,15 @@ def test_the_user_can_keep_glibcs_own_behaviour():
     assert theirs["said"] == "left to the environment's MALLOC_TRIM_THRESHOLD_"
 
 
+def test_a_mistyped_choice_is_refused_by_name(monkeypatch):
+    """V2I_MALLOC is "kept" (the default) or "system"; anything else is an error naming the variable."""
+    monkeypatch.setattr(allocator, "_applied", None)
+    monkeypatch.setenv("V2I_MALLOC", "sytem")
+    with pytest.raises(ValueError, match=r"V2I_MALLOC='sytem': not one of kept, system \(did you mean 'system'\?\)"):
+        allocator.keep_freed_memory()
+    assert allocator._applied is None  # nothing set: the next call, with the variable mended, still decides
+
+
 def test_the_torch_detector_and_the_camera_set_it_when_built():
     """Where frames are made, the maker sets it when built (as torch's thread count is set): the torch
     detector (RSU app, evaluation, benchmarks) and the world's camera (sensor workers, datasets).
