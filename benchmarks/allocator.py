@@ -37,38 +37,43 @@ sys.path[:] = [str(ROOT)] + [p for p in sys.path if Path(p or ".").resolve() != 
 from benchmarks.common import RESULTS, machine_info, write_report  # noqa: E402
 from benchmarks.perception import DEFAULT_DATA, MAKE_HELDOUT, BesideLoad, _shown  # noqa: E402
 
-MODES = {"glibc": {"V2I_MALLOC": "system"}, "kept": {}}  # the peer, and as the detectors build themselves
+MODES = {"glibc": {"V2I_MALLOC": "system"}, "kept": {}}  # the peer, and as the detector and camera set it
+
+
+def _measure(step, frames: int) -> dict:
+    """`step(i)` makes frame i: 3 warm-up frames (the first build kernels and buffers), then `frames` measured:
+    the median ms per frame, page faults and kernel CPU ms per frame (getrusage over them), and what the
+    allocator setting did in this process."""
+    import numpy as np
+
+    from bridges import allocator
+
+    for i in range(3):
+        step(i)
+    r0, times = resource.getrusage(resource.RUSAGE_SELF), []
+    for i in range(frames):
+        t0 = time.perf_counter()
+        step(i)
+        times.append(time.perf_counter() - t0)
+    r1 = resource.getrusage(resource.RUSAGE_SELF)
+    return {"ms": float(np.median(times)) * 1000, "faults_per_frame": (r1.ru_minflt - r0.ru_minflt) / frames,
+            "kernel_ms_per_frame": (r1.ru_stime - r0.ru_stime) * 1000 / frames, "allocator": allocator._applied}
 
 
 def child(backend: str, weights: str | None, data: Path, frames: int) -> dict:
-    """One case in this process: the detector's median ms per frame, its page faults and kernel time."""
-    import numpy as np
-
+    """One detector case in this process, over the first `frames` frames of `data` (`detect()`)."""
     from rsu_app.perception import make_detector
     from rsu_app.perception.dataset import load_dataset
 
     images = [s.load() for s in load_dataset(data).samples[:frames]]
     det = make_detector(backend, threads=1, **({} if weights is None else {"weights": weights}))
-    for im in images[:3]:
-        det.detect(im)  # warm-up: the first frames build the backend's kernels
-    r0, times = resource.getrusage(resource.RUSAGE_SELF), []
-    for im in images:
-        t0 = time.perf_counter()
-        det.detect(im)
-        times.append(time.perf_counter() - t0)
-    r1 = resource.getrusage(resource.RUSAGE_SELF)
-    from bridges import allocator
-
-    return {"ms": float(np.median(times)) * 1000, "faults_per_frame": (r1.ru_minflt - r0.ru_minflt) / len(images),
-            "kernel_ms_per_frame": (r1.ru_stime - r0.ru_stime) * 1000 / len(images), "allocator": allocator._applied}
+    return _measure(lambda i: det.detect(images[i % len(images)]), frames)
 
 
 def child_camera(renderer: str, frames: int) -> dict:
-    """One case in this process: the case-study camera's 640x480 frame (master.world.camera.Camera.render, as a
-    sensor worker draws it) on `renderer`: median ms per frame, page faults and kernel time per frame."""
+    """One camera case in this process: the case-study camera's 640x480 frame (master.world.camera.Camera.render,
+    as a sensor worker draws it) on `renderer`."""
     import dataclasses
-
-    import numpy as np
 
     from benchmarks.world import case_study_layout, pose_case_study
     from master.world.world import World
@@ -77,18 +82,7 @@ def child_camera(renderer: str, frames: int) -> dict:
     with World(dataclasses.replace(layout, cameras=layout.cameras[:1]), renderer=renderer) as w:
         pose_case_study(w)
         cam = next(iter(w.cameras.values()))
-        for _ in range(3):
-            cam.render()
-        r0, times = resource.getrusage(resource.RUSAGE_SELF), []
-        for _ in range(frames):
-            t0 = time.perf_counter()
-            cam.render()
-            times.append(time.perf_counter() - t0)
-        r1 = resource.getrusage(resource.RUSAGE_SELF)
-    from bridges import allocator
-
-    return {"ms": float(np.median(times)) * 1000, "faults_per_frame": (r1.ru_minflt - r0.ru_minflt) / frames,
-            "kernel_ms_per_frame": (r1.ru_stime - r0.ru_stime) * 1000 / frames, "allocator": allocator._applied}
+        return _measure(lambda i: cam.render(), frames)
 
 
 def run_case(backend: str, weights: str | None, mode: str, data: Path, frames: int) -> dict:

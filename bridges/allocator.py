@@ -12,7 +12,8 @@ would map again anyway.
 
 Called where frames are made, when the thing that makes them is built (process-wide, as the torch thread
 count is): the torch detector (the RSU app, `v2i eval-detector`, the benchmarks) and the world's camera
-(`master.world.camera.Camera`: the sensor workers, the master's loop when it renders itself, `v2i dataset`).
+(`master.world.camera.Camera`: the sensor workers, `v2i dataset`, and the master, whose World holds its
+cameras even when workers draw them; the master's own loop was not measured with it).
 The camera's 640x480 frame faulted 3,085 pages in each time (12 MB): kept, EGL's frame takes about 12 % less
 wall time and 7 % less CPU, TinyRenderer's 4-5 % less. Not called where it was measured to change nothing:
 ONNX Runtime keeps its own arena, a lidar scan faults a few dozen pages (benchmarks/allocator.py). A user
