@@ -35,9 +35,10 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path[:] = [str(ROOT)] + [p for p in sys.path if Path(p or ".").resolve() != ROOT / "benchmarks"]
 
 from benchmarks.common import RESULTS, machine_info, write_report  # noqa: E402
+from bridges import allocator  # noqa: E402
 from benchmarks.perception import DEFAULT_DATA, MAKE_HELDOUT, BesideLoad, _shown  # noqa: E402
 
-MODES = {"glibc": {"V2I_MALLOC": "system"}, "kept": {}}  # the peer, and as the detector and camera set it
+MODES = {"glibc": {allocator.ENV_OPT_OUT: "system"}, "kept": {}}  # the peer, and as the detector and camera set it
 
 
 def _measure(step, frames: int) -> dict:
@@ -45,8 +46,6 @@ def _measure(step, frames: int) -> dict:
     the median ms per frame, page faults and kernel CPU ms per frame (getrusage over them), and what the
     allocator setting did in this process."""
     import numpy as np
-
-    from bridges import allocator
 
     for i in range(3):
         step(i)
@@ -86,8 +85,7 @@ def child_camera(renderer: str, frames: int) -> dict:
 
 
 def run_case(backend: str, weights: str | None, mode: str, data: Path, frames: int) -> dict:
-    env = {k: v for k, v in os.environ.items() if k not in ("V2I_MALLOC", "MALLOC_MMAP_THRESHOLD_",
-                                                                "MALLOC_TRIM_THRESHOLD_")}
+    env = {k: v for k, v in os.environ.items() if k not in (allocator.ENV_OPT_OUT, *allocator.GLIBC_ENV)}
     env.update(MODES[mode], OMP_NUM_THREADS="1")
     cmd = [sys.executable, __file__, "--child", backend, weights or "-", str(data), str(frames)]
     out = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)

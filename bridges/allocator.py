@@ -61,9 +61,10 @@ def keep_freed_memory(mmap_threshold: int = MMAP_THRESHOLD, trim_threshold: int 
     if mallopt is None:
         _applied = "not glibc: left as the C library has it"
         return _applied
-    ok = mallopt(M_MMAP_THRESHOLD, mmap_threshold) == 1 and mallopt(M_TRIM_THRESHOLD, trim_threshold) == 1
-    _applied = (f"glibc: mmap threshold {mmap_threshold >> 20} MiB, trim threshold {trim_threshold >> 20} MiB"
-                if ok else "glibc refused the thresholds: left as it was")
+    said = [f"{what} threshold {value >> 20} MiB" if mallopt(param, value) == 1 else f"{what} threshold refused"
+            for what, param, value in (("mmap", M_MMAP_THRESHOLD, mmap_threshold),
+                                       ("trim", M_TRIM_THRESHOLD, trim_threshold))]
+    _applied = "glibc: " + ", ".join(said)
     return _applied
 
 

@@ -34,6 +34,7 @@ for _ in range(60):
     frame()
 print(json.dumps({{"faults": resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before, "said": said}}))
 """
+PAGES = 60 * (3 * 480 * 640 + 4 * 16 * 240 * 320) * 4 // 4096  # every page of LOOP's buffers, once per frame
 
 
 def _run(setup: str, **env) -> dict:
@@ -54,7 +55,7 @@ def test_freed_frame_buffers_are_reused_not_faulted_in_again():
     default = _run("said = None")
     kept = _run(KEEP)
     assert kept["said"].startswith("glibc: mmap threshold 64 MiB")
-    pages = 60 * (3 * 480 * 640 + 4 * 16 * 240 * 320) * 4 // 4096  # every page of every buffer, once per frame
+    pages = PAGES
     assert default["faults"] > 0.3 * pages, default  # glibc's defaults: its trims give pages back, faulted again
     assert kept["faults"] < 0.02 * pages, kept  # kept: the first frame's pages serve the rest
 
@@ -62,7 +63,7 @@ def test_freed_frame_buffers_are_reused_not_faulted_in_again():
 @glibc
 def test_the_user_can_keep_glibcs_own_behaviour():
     """V2I_MALLOC=system leaves glibc as it is; glibc's own variables, set by the user, are theirs to keep."""
-    pages = 60 * (3 * 480 * 640 + 4 * 16 * 240 * 320) * 4 // 4096
+    pages = PAGES
     opted_out = _run(KEEP, V2I_MALLOC="system")
     assert opted_out["said"] == "left as the C library has it (V2I_MALLOC=system)"
     assert opted_out["faults"] > 0.3 * pages
