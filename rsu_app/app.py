@@ -95,6 +95,21 @@ def make_rsu_detector(settings: Settings):
     return detector
 
 
+def j2735_codec():
+    """The J2735 codec, compiled now: before joining, not on the first MAP or BSM of the run.
+
+    Compiling the ASN.1 takes about a second of CPU; in a realtime run the first message's stage took
+    it from the run's first second, beside the master's loop and the other app. ConfigError naming
+    the ASN.1 folder's variable when a user's files cannot be compiled."""
+    from bridges.j2735 import J2735Error, default_codec
+    from bridges.j2735.codec import ASN1_DIR_ENV
+
+    try:
+        return default_codec()
+    except J2735Error as exc:
+        raise ConfigError([(ASN1_DIR_ENV, str(exc))]) from None
+
+
 def session_salt(station: str, seed: int | None, lockstep: bool) -> bytes:
     """The per-session salt of the temporary ids: from the seed (lockstep default 0: runs repeat), else random."""
     if seed is None and not lockstep:
@@ -121,6 +136,7 @@ class RsuApp:
                                       settings.security.credential or self.station, psids,
                                       settings.security.certificate_interval_s)
         self.detector = make_rsu_detector(settings) if settings.camera.names else None
+        self.codec = j2735_codec()
         self.bus = self.part = self.ingest = self.radar_ingest = self.link = self.core = None
         self.welcome = None
         self.t_sim = float("nan")

@@ -9,8 +9,12 @@ and deterministically, without rendering. The process tests
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -818,3 +822,29 @@ def test_a_box_whose_ground_fix_is_unusable_is_dropped_not_the_whole_frame(monke
         stage.apply([result])
     assert [tr.label() for tr in stage.tracker.tracks] == ["car"]
     assert list(stage.tracker.tracks[0].hits) == [True] * 4, "every frame's car box reached the tracker"
+
+
+def test_the_app_compiles_its_j2735_codec_before_it_joins():
+    # Compiling the ASN.1 is about a second of CPU: left to the first MAP or BSM, a realtime run paid it in its
+    # first second, beside the master's loop. A fresh interpreter: the codec is cached per process.
+    code = ("from rsu_app.app import RsuApp\n"
+            "from rsu_app.config import build_settings\n"
+            "from bridges.j2735.codec import _compile_builtin\n"
+            "assert _compile_builtin.cache_info().currsize == 0\n"
+            "RsuApp(build_settings({}, {'security': {'mode': 'unsecured'}, 'camera': {'names': []}}, {}))\n"
+            "print(_compile_builtin.cache_info().currsize)\n")
+    env = {k: v for k, v in os.environ.items() if k != "V2I_J2735_ASN1_DIR"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["1"]
+
+
+def test_asn1_files_that_do_not_compile_are_a_config_error_naming_the_variable(tmp_path, monkeypatch):
+    from rsu_app.app import RsuApp
+    from rsu_app.config import ConfigError, build_settings
+
+    (tmp_path / "broken.asn").write_text("J2735 DEFINITIONS ::= BEGIN this is not ASN.1 END\n")
+    monkeypatch.setenv("V2I_J2735_ASN1_DIR", str(tmp_path))
+    with pytest.raises(ConfigError, match=r"V2I_J2735_ASN1_DIR.*cannot compile"):
+        RsuApp(build_settings({}, {"security": {"mode": "unsecured"}, "camera": {"names": []}}, {}))
