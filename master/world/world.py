@@ -202,6 +202,8 @@ class WorldParticipant(Hook):
                     self.fixes[v.name], self._gnss_err2[v.name] = [], []
                     self._schedules[("gnss", v.name)] = Schedule(self.start, v.gnss.rate_hz)
         self.after_step(-1, t)
+        if self.realtime:  # the samples of the start, as in lockstep, before the clock runs: the first step
+            self._deliver_finished(wait=True)  # waited for them (60 ms, the run's first nine steps late)
         return self.metadata()
 
     def after_step(self, k: int, t_next: float) -> None:
