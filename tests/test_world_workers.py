@@ -8,6 +8,8 @@ with its previous sample drops the next. A worker that dies is named with its ex
 from __future__ import annotations
 
 import math
+import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -189,3 +191,38 @@ def test_the_camera_archive_writes_off_the_loop_in_order_and_a_failure_is_raised
     part.listeners[0]("camera", "cam", 0.0, SimpleNamespace(frame_id=0, t=0.0, rgb=None))  # no picture
     with pytest.raises(RuntimeError, match="camera archive"):
         broken.close()
+
+
+def test_a_finished_sample_is_read_whole_even_while_the_worker_is_not_scheduled():
+    # The workers run under SCHED_IDLE: while the apps hold both cores a worker may not run for a while. A
+    # frame sent down the socket (a megabyte, more than the socket holds) kept the master's loop waiting, once
+    # it began to read, for the worker to write the rest. The arrays now wait in shared memory and the socket
+    # carries a few hundred bytes: a sample the master sees ready is read whole with the worker stopped.
+    import signal
+    import threading
+
+    from master.world.sensor_worker import Job, SensorWorker
+
+    layout = _layout()
+    worker = SensorWorker("camera", layout, "tiny")
+    try:
+        worker.wait_ready()
+        poses = {"cav": (1.75, -30.0, math.pi / 2, 8.3), "ev": (-40.0, -1.75, 0.0, 16.7)}
+        worker.submit(Job("camera", "rsu_cam", 0.0, poses, {}))
+        first, _ = worker.result()  # the slot's shared memory is made with the first answer
+        worker.submit(Job("camera", "rsu_cam", 0.1, poses, {}))
+        deadline = time.monotonic() + 60
+        while not worker.ready() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        os.kill(worker._proc.pid, signal.SIGSTOP)
+        got = []
+        reader = threading.Thread(target=lambda: got.append(worker.result()), daemon=True)
+        reader.start()
+        reader.join(10.0)
+        os.kill(worker._proc.pid, signal.SIGCONT)
+        assert got, "the master waited for a stopped worker to finish writing a sample it had been told was ready"
+        frame, seconds = got[0]
+        assert frame.t == 0.1 and frame.rgb.shape == (480, 640, 3) and frame.rgb.flags.writeable and seconds > 0
+        assert np.array_equal(frame.rgb, first.rgb)  # the same poses drawn twice
+    finally:
+        worker.close()

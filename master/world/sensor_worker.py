@@ -16,9 +16,16 @@ interpreter (`python -m master.world.sensor_worker`), not a fork (the master
 runs the bus's threads and may hold an OpenGL context) nor a multiprocessing
 spawn (which runs the caller's main script again in the child), with its
 thread budget in its environment (`THREADS`) and a socket to the master.
+
+A sample's arrays come back through shared memory, not the socket (`ResultArea`): the worker runs
+under SCHED_IDLE, and a megabyte-sized frame sent down the socket left the master's loop, once
+it began to read, waiting for the worker to be scheduled to write the rest (in a realtime run at
+RTF 1: 5 ms or more for one frame in ten, while the two apps held both cores). Now the worker fills
+the area first and then sends a few hundred bytes; the master copies the arrays out.
 """
 from __future__ import annotations
 
+import mmap
 import os
 import pickle
 import socket
@@ -28,6 +35,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
+from multiprocessing.reduction import recv_handle, send_handle
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +67,59 @@ class Job:
     poses: dict[str, tuple[float, float, float, float]]  # vehicle -> x, y, yaw, v (rear axle)
     signals: dict[str, int]  # signal head -> MovementPhaseState shown
     segmentation: bool = False  # cameras: the body-id pass too (ground truth only)
+    slot: int = 0  # the result area to answer in: the master gives one no unread answer uses
+
+
+class ResultArea:
+    """The worker's side of one result slot: shared memory (a memfd) the sample's arrays are written to.
+
+    `pack` pickles the sample with its arrays out of band (pickle protocol 5), copies them into the
+    area, and returns what the master needs to rebuild it: the pickle's own bytes (small), the arrays'
+    (offset, length) spans, and the area's size when it was made anew for this sample (0 otherwise),
+    in which case its file descriptor follows the answer on the socket.
+    """
+
+    def __init__(self):
+        self.map: mmap.mmap | None = None
+        self.fd: int | None = None
+
+    def pack(self, data: Any) -> tuple[bytes, list[tuple[int, int]], int]:
+        buffers: list[pickle.PickleBuffer] = []
+        head = pickle.dumps(data, protocol=5, buffer_callback=buffers.append)
+        raws = [b.raw() for b in buffers]
+        size = sum(r.nbytes for r in raws)
+        made = 0
+        if self.map is None or size > len(self.map):
+            # room to grow: a lidar's hit count varies (a new area's descriptor follows the answer, which the
+            # master may then wait for, so areas are made seldom: at the first sample, while the world opens)
+            made = max(size, 1 << 16) * 2
+            self.close()
+            self.fd = os.memfd_create("v2i-sensor-result", os.MFD_CLOEXEC)
+            os.ftruncate(self.fd, made)
+            self.map = mmap.mmap(self.fd, made)
+        spans, offset = [], 0
+        for r in raws:
+            self.map[offset:offset + r.nbytes] = r
+            spans.append((offset, r.nbytes))
+            offset += r.nbytes
+        return head, spans, made
+
+    def close(self) -> None:
+        if self.map is not None:
+            self.map.close()
+        if self.fd is not None:
+            os.close(self.fd)
+        self.map = self.fd = None
+
+
+def unpack(area: mmap.mmap, head: bytes, spans: list[tuple[int, int]]) -> Any:
+    """The master's side: the sample rebuilt from `ResultArea.pack`'s answer, its arrays copied out of the
+    area (writable, and the slot free for the next sample)."""
+    view = memoryview(area)
+    try:
+        return pickle.loads(head, buffers=[bytearray(view[o:o + n]) for o, n in spans])
+    finally:
+        view.release()
 
 
 def _serve(conn, layout: WorldLayout, renderer: str | None) -> None:
@@ -71,6 +132,7 @@ def _serve(conn, layout: WorldLayout, renderer: str | None) -> None:
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
     conn.send(("ready", world.scene.renderer_name, dict(world.scene.vehicle_ids)))
+    areas: dict[int, ResultArea] = {}
     try:
         while True:
             try:
@@ -92,8 +154,15 @@ def _serve(conn, layout: WorldLayout, renderer: str | None) -> None:
             except Exception as exc:  # noqa: BLE001
                 conn.send(("error", f"{type(exc).__name__}: {exc}"))
                 continue
-            conn.send(("ok", data, time.perf_counter() - t0))
+            seconds = time.perf_counter() - t0
+            area = areas.setdefault(job.slot, ResultArea())
+            head, spans, made = area.pack(data)
+            conn.send(("ok", head, spans, made, seconds))
+            if made:
+                send_handle(conn, area.fd, os.getppid())
     finally:
+        for area in areas.values():
+            area.close()
         world.close()
 
 
@@ -122,6 +191,8 @@ class SensorWorker:
         self._conn = Connection(parent.detach())
         self._conn.send((layout, renderer if kind == "camera" else "tiny"))
         self.pending = 0
+        self._slots: list[int] = []  # the result slot of each sample asked for and not yet read, in order
+        self._areas: dict[int, mmap.mmap] = {}  # slot -> the worker's shared memory for it
         self.renderer_name: str | None = None
         self.vehicle_ids: dict[str, int] = {}
         self._started = False
@@ -138,10 +209,12 @@ class SensorWorker:
         self._started = True
 
     def submit(self, job: Job) -> None:
+        job.slot = min(set(range(len(self._slots) + 1)) - set(self._slots))  # one no unread answer is in
         try:
             self._conn.send(job)
         except OSError:
             raise self._died("to hand it a sample") from None
+        self._slots.append(job.slot)
         self.pending += 1
 
     def ready(self) -> bool:
@@ -150,9 +223,23 @@ class SensorWorker:
     def result(self) -> tuple[Any, float]:
         msg = self._receive(JOB_TIMEOUT_S, "for a sample")
         self.pending -= 1
+        slot = self._slots.pop(0)
         if msg[0] != "ok":
             raise RuntimeError(f"{self.kind} worker: {msg[1]}")
-        return msg[1], msg[2]
+        _, head, spans, made, seconds = msg
+        if made:
+            try:
+                fd = recv_handle(self._conn)
+            except (EOFError, OSError, RuntimeError):
+                raise self._died("for a sample's shared memory") from None
+            try:
+                old = self._areas.pop(slot, None)
+                if old is not None:
+                    old.close()
+                self._areas[slot] = mmap.mmap(fd, made)
+            finally:
+                os.close(fd)
+        return unpack(self._areas[slot], head, spans), seconds
 
     def _died(self, what: str) -> RuntimeError:
         self._stderr.seek(0)
@@ -180,7 +267,9 @@ class SensorWorker:
             # read what it still answers: a worker blocked writing a frame nobody reads would never see the None
             while self._proc.poll() is None and time.monotonic() < deadline:
                 if self._conn.poll(0.05):
-                    self._conn.recv()
+                    msg = self._conn.recv()
+                    if msg[0] == "ok" and msg[3]:  # a new result area's descriptor follows it
+                        os.close(recv_handle(self._conn))
         except (OSError, ValueError, EOFError, pickle.UnpicklingError):
             pass
         try:
@@ -190,6 +279,9 @@ class SensorWorker:
             self._proc.wait(5.0)
         self._conn.close()
         self._stderr.close()
+        for area in self._areas.values():
+            area.close()
+        self._areas.clear()
 
 
 def main(argv: list[str] | None = None) -> int:
