@@ -35,7 +35,7 @@ from master.run.initialization import initialize
 from master.scenario.input_file import InputFiles
 from master.run.interrupts import Interrupted, SignalGuard
 from master.run.metrics import METRICS, run_metrics, write_metrics
-from master.run.pacing import Pacer
+from master.run.pacing import Pacer, restore_nice, set_loop_nice
 from master.links.participants import ParticipantBridge, open_run_bus
 from master.links.radio_bridge import RadioBridge
 from master.run.recorder import METADATA, RunRecorder
@@ -322,6 +322,7 @@ class CoSimulation:
             n, h, start = t.n_steps, t.step, t.start
             wall0 = time.perf_counter()
             if pacer:
+                meta["realtime"]["loop_nice"] = set_loop_nice(t.loop_nice)
                 pacer.start()
             clock, timed = time.perf_counter, compute.append
             for k in range(n):
@@ -363,6 +364,8 @@ class CoSimulation:
             raise
         finally:
             wall = time.perf_counter() - wall0
+            if pacer and meta["realtime"].get("loop_nice"):
+                restore_nice(meta["realtime"]["loop_nice"])  # the closing and the report at the thread's own
             if progress is not None:
                 progress.close()
             sim_elapsed = steps_done * t.step

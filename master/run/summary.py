@@ -33,6 +33,9 @@ def format_summary(result: RunResult, max_rows: int = 16) -> str:
         if lag["n"]:
             lines.append(f"  realtime lag p50 {lag['p50'] * 1e3:.3f} ms, p99 {lag['p99'] * 1e3:.3f} ms, "
                          f"max {lag['max'] * 1e3:.3f} ms; deadline misses {rt['deadline_misses']}")
+        nice = rt.get("loop_nice") or {}
+        if nice.get("note"):
+            lines.append(f"  loop priority (time.loop_nice = {nice['asked']}): {nice['note']}")
     if meta.get("stop_reason"):
         lines.append(f"  stopped: {meta['stop_reason']}")
     metrics = _metrics(result)

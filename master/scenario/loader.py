@@ -30,7 +30,7 @@ _TOP_KEYS = _CORE_KEYS + section_keys()
 # an unknown key in a core table that is a top-level key was most likely written after a [table] header
 _MOVED = {k: f"in TOML a key after a [table] header belongs to that table: move `{k} = ...` above the first [table]"
           for k in _TOP_KEYS}
-_TIME_KEYS = ("start", "stop", "step", "mode", "ordering", "rtf", "overrun", "stop_on")
+_TIME_KEYS = ("start", "stop", "step", "mode", "ordering", "rtf", "overrun", "loop_nice", "stop_on")
 _INSTANCE_KEYS = ("fmu", "parameters", "start", "step_multiple", "input")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _CONNECTION = re.compile(r"^\s*([^.\s]+)\.(\S+)\s*->\s*([^.\s]+)\.(\S+)\s*$")
@@ -45,6 +45,7 @@ class TimeSettings:
     ordering: str = "jacobi"
     rtf: float = 1.0
     overrun: str = "catch-up"
+    loop_nice: int = -10  # realtime: the loop thread's nice value (master.run.pacing.set_loop_nice)
     stop_on: tuple[str, ...] = ()  # "collision" and conditions over signals (master.scenario.conditions)
 
     @property
@@ -113,7 +114,7 @@ class Scenario:
                          **({"overrides": list(self.overrides)} if self.overrides else {})},
             "time": {"start": t.start, "stop": t.stop, "step": t.step, "mode": t.mode,
                      "ordering": t.ordering, "rtf": t.rtf, "overrun": t.overrun,
-                     **({"stop_on": list(t.stop_on)} if t.stop_on else {})},
+                     "loop_nice": t.loop_nice, **({"stop_on": list(t.stop_on)} if t.stop_on else {})},
             "fmus": {
                 i.name: {"fmu": str(i.path), "step_multiple": i.step_multiple,
                          "parameters": dict(i.parameters), "start": dict(i.start),
@@ -323,6 +324,7 @@ class _Validator:
             ordering=t.choice("ordering", ORDERINGS, d.ordering),
             rtf=t.number("rtf", d.rtf, low=0, low_open=True),
             overrun=t.choice("overrun", OVERRUN_POLICIES, d.overrun),
+            loop_nice=t.number("loop_nice", d.loop_nice, low=-20, high=19, integer=True),
             stop_on=tuple(t.strings("stop_on", [], one=True, expected='a list such as ["collision", "cav.v < 0.1"]')
                           or ()),
         )
