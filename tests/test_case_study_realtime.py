@@ -6,12 +6,12 @@ follows the pacer's schedule): the apps stamp their work on it, and the master s
 frames, air arrivals, applied commands) on it too. So every stage is non-negative and every camera-based record
 the AV app turned into a command has an end-to-end figure. Needs root and `ip netns` (skips otherwise).
 
-RTF 0.5. The camera and lidar take their samples in worker processes beside the loop (issue 41), so the loop no
-longer stalls for a frame; this 2-core machine holds the case study at RTF 0.6 (docs/case-study.md, "In real
-time") but not at 1, where a simulated second asks more than two cores of work (the camera alone 1.1-2.1 CPU
-seconds): the test keeps a margin under 0.6. Measured here, 3 runs at 0.5 with the box: 4-6 of 1200 steps late,
-lag p99 1.4-2.2 ms, min gap 6.3-6.8 m, 132-133 records end to end, E2E p50 251-290 ms of run clock. (It ran at
-0.2 before: at 0.3 the loop, rendering on its own thread, fell behind by seconds.)
+RTF 1. The camera and lidar take their samples in worker processes beside the loop (issue 41), answering
+through shared memory, and the loop's thread paces at nice -10 (`[time] loop_nice`; root here, as the
+namespaces need): on this 2-core machine the case study keeps real time at RTF 1 (docs/case-study.md, "In
+real time"; 3 runs of 3 per renderer, 0-7 of 1200 steps late), though the camera worker, idle-priority, draws
+only about half the frames asked for, so frames reach the box later than at a lower RTF. (It ran at 0.5 before
+the loop's priority and the shared memory, at 0.2 before the workers.)
 """
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ from test_hil_netns import MASTER_IP, netns_pair  # noqa: F401  (the two-namespa
 from test_rsu_app_support import free_port, make_pki
 
 ROOT = Path(__file__).resolve().parent.parent
-RTF = 0.5
+RTF = 1.0
 PREFIX = f"test/rt-box-{uuid.uuid4().hex[:8]}"
 pytest.importorskip("zenoh")
 pytest.importorskip("pybullet")
@@ -159,7 +159,9 @@ def test_every_stage_is_measured_on_one_clock(realtime_run):
     e2e = realtime_run["metrics"]["latency_ms"]["e2e"]
     assert e2e["n"] == matched and e2e["p50"] > 0
     assert f"E2E latency p50 {e2e['p50']:.1f} ms" in realtime_run["stdout"]
-    assert f"wall clock at RTF {RTF:g}: p50 {e2e['p50'] / RTF:.1f} ms" in realtime_run["stdout"]
+    wall_line = f"wall clock at RTF {RTF:g}: p50 {e2e['p50'] / RTF:.1f} ms"
+    # at RTF 1 the run clock is the wall clock: no second line (at any other RTF, simulated ms / RTF)
+    assert (wall_line in realtime_run["stdout"]) == (RTF != 1.0), realtime_run["stdout"]
 
 
 def test_a_run_that_missed_deadlines_says_so(realtime_run):
