@@ -146,3 +146,45 @@ def test_where_each_renderer_draws_a_point():
     assert len(rows) == 1, out
     du, dv = (float(x) for x in rows[0])
     assert abs(du) < 0.1 and abs(dv) < 0.1, (du, dv)
+
+
+_SHADOWS = """
+import os
+from master.world.camera import Lighting
+layout = load_scenario(ROOT / "scenarios" / "ima_world.toml").world
+with World(layout, renderer="egl") as w:
+    w.pose_vehicle("cav", 1.75, -20.0, np.pi / 2)
+    w.pose_vehicle("ev", -25.0, -1.75, 0.0)
+    cam = w.cameras["rsu_cam"]
+    flat, shadowed = cam.render(0.0), cam.render(0.0, Lighting(shadow=True))
+    os.environ["V2I_EGL_SHADOWS"] = "always"
+    always = cam.render(0.0)
+lift = flat.rgb.astype(int) - shadowed.rgb.astype(int)
+print("lift", lift.min(), np.mean(lift.max(axis=2) > 10), np.array_equal(flat.seg, shadowed.seg),
+      np.array_equal(always.rgb, shadowed.rgb))
+"""
+
+
+def test_egl_draws_its_shadow_map_only_where_the_lighting_asks_for_shadows():
+    """Without shadows (the apps' live frames) EGL skips its shadow map, most of a frame's CPU on llvmpipe
+    (benchmarks/world.py): the same picture less its shadows, so no pixel darker and every body where it was;
+    shadowed pixels brighter (the corner building's shadow falls across the road). V2I_EGL_SHADOWS=always
+    draws the map for every frame, as before it was switchable."""
+    out = _egl_child("from tests.test_world_renderer import ROOT, World, load_scenario\n" + _SHADOWS).stdout
+    rows = [line.split()[1:] for line in out.splitlines() if line.startswith("lift ")]
+    assert len(rows) == 1, out
+    darkest, lifted, same_bodies, always_shadowed = rows[0]
+    assert int(darkest) >= 0  # nothing darker without the shadow map
+    assert float(lifted) > 0.01  # and the shadows are gone: it did skip the map
+    assert same_bodies == "True" and always_shadowed == "True"
+
+
+def test_a_mistyped_egl_shadows_choice_is_refused_naming_the_variable(monkeypatch):
+    monkeypatch.setenv(renderer.SHADOWS_ENV, "allways")
+    with pytest.raises(ValueError, match=r"V2I_EGL_SHADOWS='allways': expected one of lighting, always; "
+                                         r"did you mean 'always'"):
+        renderer.egl_shadows_always()
+    monkeypatch.setenv(renderer.SHADOWS_ENV, "always")
+    assert renderer.egl_shadows_always()
+    monkeypatch.delenv(renderer.SHADOWS_ENV)
+    assert not renderer.egl_shadows_always()

@@ -39,7 +39,7 @@ class Lighting:
     ambient: float | None = None
     diffuse: float | None = None
     specular: float | None = None
-    shadow: bool = False
+    shadow: bool = False  # cast shadows: TinyRenderer's shadow pass, EGL's shadow map (Camera._draw_arguments)
 
     def arguments(self) -> dict:
         args = {"shadow": int(self.shadow)}
@@ -117,10 +117,30 @@ class Camera:
 
     def warm_up(self, frames: int) -> None:
         """Draw `frames` frames and keep nothing (not counted, not timed)."""
+        flags, args = self._draw_arguments(Lighting(), segmentation=False)
         W, H = self.spec.width, self.spec.height
         with gl_to_stderr(self.renderer):
             for _ in range(frames):
-                pb.getCameraImage(W, H, self._view, self._proj, renderer=self.renderer, physicsClientId=self.client)
+                pb.getCameraImage(W, H, self._view, self._proj, renderer=self.renderer, flags=flags,
+                                  physicsClientId=self.client, **args)
+
+    def _draw_arguments(self, lighting: Lighting, segmentation: bool) -> tuple[int, dict]:
+        """getCameraImage's flags and keyword arguments for a frame under `lighting`.
+
+        EGL draws its shadow map (a depth pass of fixed size, before the picture: most of an EGL frame's CPU
+        on Mesa's llvmpipe) only where the lighting asks for shadows, as TinyRenderer its shadow pass: else
+        it draws through its projective-texture path, which skips the shadow map. The scene's bodies carry
+        colours and no textures, so that path, projecting from the camera itself, draws the same picture less
+        its shadows (no pixel darker: tests/test_world_renderer.py). `V2I_EGL_SHADOWS=always` draws the shadow
+        map for every frame, as before (renderer.SHADOWS_ENV)."""
+        from master.world.renderer import egl_shadows_always
+
+        flags = 0 if segmentation else pb.ER_NO_SEGMENTATION_MASK
+        args = lighting.arguments()
+        if self.renderer == pb.ER_BULLET_HARDWARE_OPENGL and not lighting.shadow and not egl_shadows_always():
+            flags |= pb.ER_USE_PROJECTIVE_TEXTURE
+            args.update(projectiveTextureView=self._view, projectiveTextureProj=self._proj)
+        return flags, args
 
     def render(self, t: float = 0.0, lighting: Lighting | None = None, segmentation: bool = True) -> Frame:
         """Render one frame at simulation time t; raises RuntimeError naming the camera on failure.
@@ -133,13 +153,12 @@ class Camera:
         if self.client is None:
             raise RuntimeError(f"camera {self.name!r}: made for projection only (no pybullet client to render with)")
         W, H = self.spec.width, self.spec.height
-        light = (lighting or Lighting()).arguments()
+        flags, args = self._draw_arguments(lighting or Lighting(), segmentation)
         t0 = time.perf_counter()
         try:
             with gl_to_stderr(self.renderer):
                 _, _, rgba, _, seg = pb.getCameraImage(W, H, self._view, self._proj, renderer=self.renderer,
-                                                       flags=0 if segmentation else pb.ER_NO_SEGMENTATION_MASK,
-                                                       physicsClientId=self.client, **light)
+                                                       flags=flags, physicsClientId=self.client, **args)
         except pb.error as exc:
             raise RuntimeError(f"camera {self.name!r}: render failed: {exc}") from exc
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(H, W, 4)[:, :, :3].copy()
