@@ -8,10 +8,11 @@ the AV app turned into a command has an end-to-end figure. Needs root and `ip ne
 
 RTF 1. The camera and lidar take their samples in worker processes beside the loop (issue 41), answering
 through shared memory, and the loop's thread paces at nice -10 (`[time] loop_nice`; root here, as the
-namespaces need): on this 2-core machine the case study keeps real time at RTF 1 (docs/case-study.md, "In
-real time"; 3 runs of 3 per renderer, 0-7 of 1200 steps late), though the camera worker, idle-priority, draws
-only about half the frames asked for, so frames reach the box later than at a lower RTF. (It ran at 0.5 before
-the loop's priority and the shared memory, at 0.2 before the workers.)
+namespaces need): on this 2-core machine the case study keeps its clock at RTF 1 (docs/case-study.md, "In real
+time"; 3 runs of 3 per renderer, 0-4 of 1200 steps late). With the default renderer here (TinyRenderer) the
+idle-priority camera worker draws only about a third of the frames asked for, so frames reach the box later
+than at a lower RTF. (It ran at 0.5 before the loop's priority and the shared memory, at 0.2 before the
+workers.)
 """
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """Cameras and lidars in worker processes beside the master's loop.
 
-A camera frame costs about 110 ms of CPU (640x480, pybullet's EGL renderer on
-Mesa's llvmpipe; TinyRenderer about 170 ms) and a 16 x 1024 lidar scan about
-45 ms: run on the loop's thread, one after the other, they held the case-study
+A camera frame cost about 110 ms of CPU (640x480, pybullet's EGL renderer on
+Mesa's llvmpipe with its shadow map, 20 ms without: renderer.py; TinyRenderer
+about 170 ms) and a 16 x 1024 lidar scan about 45 ms: run on the loop's thread, one after the other, they held the case-study
 world to 0.45-0.6x real time while the second core waited, and in a realtime
 run every sample stalled the loop for several steps. Each `SensorWorker` owns
 its own copy of the scene (built from the same layout, so every body has the
@@ -43,8 +43,9 @@ from master.world.layout import WorldLayout
 
 # Threads each worker may start, so that master, renderer, lidar and two apps share 2 cores without
 # oversubscribing them: numpy's BLAS one thread (its idle threads spin: 3.5 % of a render's profile);
-# llvmpipe two raster threads unless the user set LP_NUM_THREADS (a frame costs the same CPU either way,
-# 105 ms on one thread or 62 ms of wall time on two: the frame arrives sooner).
+# llvmpipe two raster threads unless the user set LP_NUM_THREADS (a frame cost the same CPU either way,
+# 105 ms on one thread or 62 ms of wall time on two, when EGL drew its shadow map for every frame: the
+# frame arrives sooner; without the map 32-33 ms of wall time in a realtime run at RTF 1).
 THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 RENDER_THREADS = "2"
 # Workers run under SCHED_IDLE (else niced): in realtime the loop's step deadlines and the apps come first
