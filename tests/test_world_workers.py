@@ -226,3 +226,29 @@ def test_a_finished_sample_is_read_whole_even_while_the_worker_is_not_scheduled(
         assert np.array_equal(frame.rgb, first.rgb)  # the same poses drawn twice
     finally:
         worker.close()
+
+
+@pytest.mark.parametrize("memfd", [True, False], ids=["memfd", "temporary-file"])
+def test_a_result_area_gives_back_the_arrays_it_was_given_and_grows(monkeypatch, memfd):
+    from master.world.lidar import Scan
+    from master.world.sensor_worker import ResultArea, unpack
+
+    if not memfd:  # where the C library has no memfd_create (not Linux): an unlinked temporary file
+        monkeypatch.delattr(os, "memfd_create", raising=False)
+    area = ResultArea()
+    try:
+        rng = np.random.default_rng(1)
+        small = Scan(0.1, rng.normal(size=(100, 3)), rng.integers(0, 9, 100), 16384, (1.0, 2.0, 0.5))
+        head, spans, made = area.pack(small)
+        assert made > 0 and len(head) < 1000  # the arrays went to the area, not into the pickle
+        back = unpack(area.map, head, spans)
+        assert back.t == 0.1 and back.pose == small.pose and back.n_rays == 16384
+        assert np.array_equal(back.points, small.points) and np.array_equal(back.body_ids, small.body_ids)
+        assert back.points.flags.writeable
+        assert area.pack(small)[2] == 0  # it fits: no new area, no descriptor to send
+        big = Scan(0.2, rng.normal(size=(100_000, 3)), rng.integers(0, 9, 100_000), 16384)
+        head, spans, made = area.pack(big)
+        assert made >= big.points.nbytes + big.body_ids.nbytes  # grown for it
+        assert np.array_equal(unpack(area.map, head, spans).points, big.points)
+    finally:
+        area.close()

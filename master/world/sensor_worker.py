@@ -95,7 +95,7 @@ class ResultArea:
             # master may then wait for, so areas are made seldom: at the first sample, while the world opens)
             made = max(size, 1 << 16) * 2
             self.close()
-            self.fd = os.memfd_create("v2i-sensor-result", os.MFD_CLOEXEC)
+            self.fd = _anonymous_file()
             os.ftruncate(self.fd, made)
             self.map = mmap.mmap(self.fd, made)
         spans, offset = [], 0
@@ -111,6 +111,15 @@ class ResultArea:
         if self.fd is not None:
             os.close(self.fd)
         self.map = self.fd = None
+
+
+def _anonymous_file() -> int:
+    """A file descriptor of memory no name reaches: a memfd (Linux), else an unlinked temporary file."""
+    if hasattr(os, "memfd_create"):
+        return os.memfd_create("v2i-sensor-result", os.MFD_CLOEXEC)
+    fd, path = tempfile.mkstemp(prefix="v2i-sensor-result-")
+    os.unlink(path)
+    return fd
 
 
 def unpack(area: mmap.mmap, head: bytes, spans: list[tuple[int, int]]) -> Any:
