@@ -844,7 +844,13 @@ def test_asn1_files_that_do_not_compile_are_a_config_error_naming_the_variable(t
     from rsu_app.app import RsuApp
     from rsu_app.config import ConfigError, build_settings
 
+    from bridges.j2735.codec import default_codec
+
     (tmp_path / "broken.asn").write_text("J2735 DEFINITIONS ::= BEGIN this is not ASN.1 END\n")
     monkeypatch.setenv("V2I_J2735_ASN1_DIR", str(tmp_path))
-    with pytest.raises(ConfigError, match=r"V2I_J2735_ASN1_DIR.*cannot compile"):
-        RsuApp(build_settings({}, {"security": {"mode": "unsecured"}, "camera": {"names": []}}, {}))
+    default_codec.cache_clear()  # the process-wide codec, made by earlier tests from the built-in module
+    try:
+        with pytest.raises(ConfigError, match=r"V2I_J2735_ASN1_DIR.*cannot compile"):
+            RsuApp(build_settings({}, {"security": {"mode": "unsecured"}, "camera": {"names": []}}, {}))
+    finally:
+        default_codec.cache_clear()
