@@ -2,8 +2,8 @@
 
 A camera frame cost about 110 ms of CPU (640x480, pybullet's EGL renderer on
 Mesa's llvmpipe with its shadow map, 20 ms without: renderer.py; TinyRenderer
-about 170 ms) and a 16 x 1024 lidar scan about 45 ms: run on the loop's thread, one after the other, they held the case-study
-world to 0.45-0.6x real time while the second core waited, and in a realtime
+about 170 ms) and a 16 x 1024 lidar scan about 45 ms: run on the loop's
+thread, one after the other, they held the case-study world to 0.45-0.6x real time while the second core waited, and in a realtime
 run every sample stalled the loop for several steps. Each `SensorWorker` owns
 its own copy of the scene (built from the same layout, so every body has the
 same id as in the master's scene), is handed the vehicles' poses and the lamp
@@ -72,7 +72,7 @@ class Job:
 
 
 class ResultArea:
-    """The worker's side of one result slot: shared memory (a memfd) the sample's arrays are written to.
+    """The worker's side of one result slot: shared memory (`_anonymous_file`) the sample's arrays go to.
 
     `pack` pickles the sample with its arrays out of band (pickle protocol 5), copies them into the
     area, and returns what the master needs to rebuild it: the pickle's own bytes (small), the arrays'
@@ -161,13 +161,13 @@ def _serve(conn, layout: WorldLayout, renderer: str | None) -> None:
                     data = world.cameras[job.name].render(job.t, segmentation=job.segmentation)
                 else:
                     data = world.scan(job.name, job.t)
+                seconds = time.perf_counter() - t0
+                area = areas.setdefault(job.slot, ResultArea())
+                pickled, spans, made = area.pack(data)
             except Exception as exc:  # noqa: BLE001
                 conn.send(("error", f"{type(exc).__name__}: {exc}"))
                 continue
-            seconds = time.perf_counter() - t0
-            area = areas.setdefault(job.slot, ResultArea())
-            head, spans, made = area.pack(data)
-            conn.send(("ok", head, spans, made, seconds))
+            conn.send(("ok", pickled, spans, made, seconds))
             if made:
                 send_handle(conn, area.fd, os.getppid())
     finally:
