@@ -226,7 +226,7 @@ class RsuApp:
         return RsuCore(self.latency, perception, bsm, spat, map_stage, bsm_rate_hz=s.timing.bsm_rate_hz,
                        spat_rate_hz=s.spat.rate_hz, map_rate_hz=s.map.rate_hz, realtime=not lockstep,
                        trace_detections=self.traces_detections, sdsm=sdsm, priority=priority,
-                       ssm_rate_hz=s.priority.ssm_rate_hz)
+                       ssm_rate_hz=s.priority.ssm_rate_hz, bsm_follows=s.timing.bsm_follows)
 
     # -- running ------------------------------------------------------------------------------------------
     def run(self) -> int:

@@ -185,6 +185,10 @@ class TimingSettings:
         positive=True))
     bsm_rate_hz: float = field(default=10.0, metadata=_key("BSMs per track per second (J2945/1: 10)",
                                                            positive=True, high=100.0))
+    bsm_follows: list[str] = field(default_factory=list, metadata=_key(
+        "cameras or radars (of camera.names, radar.names) whose detections open a BSM slot at once, at most one "
+        "a period (a quarter of it early or late allowed); empty: slots every 1/bsm_rate_hz from the first "
+        "detection of any sensor, each detection waiting for the next (up to a period)"))
 
 
 @dataclass
@@ -496,6 +500,11 @@ def build_settings(flags: dict[str, Any] | None = None, config: dict[str, Any] |
     if not messages or len(set(messages)) != len(messages):
         problems.append(("v2x.messages", f"give each of {', '.join(MESSAGE_KINDS)} at most once, at least one, "
                                          f"got {messages!r}"))
+    sensors = [*settings.camera.names, *settings.radar.names]
+    for name in settings.timing.bsm_follows:
+        if name not in sensors:
+            problems.append(("timing.bsm_follows", f"{name!r} is none of the RSU's sensors{_did_you_mean(name, sensors)}"
+                                                   f" (camera.names, radar.names: {', '.join(sensors) or 'none'})"))
     if settings.detector.compile and settings.detector.backend != "torch":
         problems.append(("detector.compile", f"only the torch backend compiles its network; detector.backend is "
                                              f"{settings.detector.backend!r}"))

@@ -15,7 +15,17 @@ and when depends only on simulation times and data stamped <= t (lockstep +
     READY  the tracker learns the detections (at the frame's time). The first
            READY starts the BSM clock.
     BSM    every 1/bsm_rate_hz from the first READY: one BSM per confirmed track,
-           predicted to the slot's time, then encode + sign (stage 2).
+           predicted to the slot's time, then encode + sign (stage 2). With
+           `bsm_follows` (sensor names) the slots follow those sensors' detections
+           instead: a READY of one of them opens a slot at once unless its frame
+           was taken less than the period (less FOLLOW_SLACK of it) after the frame
+           that opened the last one (a camera faster than the BSM rate: one frame
+           a period); without such a READY a slot comes the period plus
+           FOLLOW_SLACK after the last slot (the tracks a sensor that stopped left
+           are still broadcast; a detection a little late is not overtaken). A
+           free-running clock's phase is fixed by the first READY of any sensor,
+           so it leaves a camera's detection waiting up to a period (half of one
+           on average) for its slot.
     STATUS a controller status arrived.
     SPAT / MAP  at their rates from the run's start.
 
@@ -82,6 +92,11 @@ READY, STATUS, FRAME, BSM, SPAT, MAP, ACK, SRM, SSM = range(9)
 # s: how far before the horizon work ahead stops. Only float noise separates the horizon (t + step) from the
 # time of the master's next frame; anything this close to it is done at the next tick, as without a horizon.
 AHEAD_MARGIN = 1e-9
+# share of the BSM period by which slots that follow a sensor's detections may come early (a detection a little
+# earlier than a period after the last slot still opens one) or late (the clock's slot waits this much longer for
+# the detection): above the jitter of a detector's time per frame, below half a period so a sensor faster than
+# the BSM rate still gives one slot a period (a 30 Hz camera: every third frame).
+FOLLOW_SLACK = 0.25
 
 
 @dataclass
@@ -100,7 +115,7 @@ class RsuCore:
                  bsm: BsmStage | None = None, spat=None, map_stage=None, *, t0: float | None = None,
                  bsm_rate_hz: float = 10.0, spat_rate_hz: float = 10.0, map_rate_hz: float = 1.0,
                  realtime: bool = False, trace_detections: bool = False, sdsm=None, priority=None,
-                 ssm_rate_hz: float = 10.0):
+                 ssm_rate_hz: float = 10.0, bsm_follows=()):
         self.latency, self.perception, self.bsm, self.spat, self.map = latency, perception, bsm, spat, map_stage
         self.sdsm = sdsm  # SdsmStage: one SDSM per slot with every track (beside or instead of the BSMs)
         self.priority = priority  # rsu_app.priority_stage.PriorityStage: SRMs in, preemption calls and SSMs out
@@ -115,6 +130,10 @@ class RsuCore:
         self._events: list = []
         self._order = itertools.count()
         self._bsm_start: float | None = None
+        self.bsm_follows = frozenset(bsm_follows)  # sensor names whose detections open a BSM slot at once
+        self._last_slot: float | None = None  # following: when the last slot ran
+        self._last_followed: float | None = None  # following: the frame time of the last detection that opened one
+        self._slot_gen = 0  # following: the number of the one slot event still valid (a newer one cancels it)
         self._pending_ready: dict[float, list[FrameResult]] = {}
         self.t = float("-inf")  # events up to here are done
         self.tracks_seen: set[int] = set()
@@ -174,6 +193,13 @@ class RsuCore:
                 self._priority_srm(when, payload)
             elif kind == FRAME:
                 self._frame(when, payload)
+            elif kind == BSM and self.bsm_follows:
+                if payload == self._slot_gen:  # else a slot opened by a detection took its place
+                    self.counters.bsm_slots += 1
+                    out += self._bsm_slot(base)
+                    self._last_slot = base
+                    self._slot_gen += 1
+                    self._push(base + self.bsm_period * (1.0 + FOLLOW_SLACK), BSM, self._slot_gen)
             elif kind == BSM:
                 start, n = payload
                 self.counters.bsm_slots += 1
@@ -299,7 +325,21 @@ class RsuCore:
             self.records += [detection_record(r, self._bsm_id) for r in results if r.kind != RADAR_KIND]
         if self.sdsm is not None:
             self.sdsm.observe(results)
-        if self._bsm_start is None and (self.bsm is not None or self.sdsm is not None):
+        if self.bsm is None and self.sdsm is None:
+            return
+        if self.bsm_follows:
+            followed = [r.t for r in results if r.camera in self.bsm_follows]
+            # the rate is kept on the frames' own times, which are regular, not on when their detections are
+            # ready, which varies with the detector's time per frame
+            opens = bool(followed) and (self._last_followed is None or max(followed) >= self._last_followed
+                                        + self.bsm_period * (1.0 - FOLLOW_SLACK) - EPS)
+            if opens or self._last_slot is None:
+                if opens:
+                    self._last_followed = max(followed)
+                self._slot_gen += 1  # the pending slot of the clock gives way to this one
+                self._push(when, BSM, self._slot_gen)
+                self._last_slot = when
+        elif self._bsm_start is None:
             self._bsm_start = when
             self._push(when, BSM, (when, 0))
 

@@ -200,3 +200,15 @@ def test_only_the_torch_backend_compiles():
         build_settings({"detector.compile": "true"}, base, {})
     assert err.value.problems == [("detector.compile", "only the torch backend compiles its network; "
                                                        "detector.backend is 'onnx'")]
+
+
+def test_bsm_slots_follow_only_sensors_the_rsu_has():
+    base = {"security": {"mode": "unsecured"}, "radar": {"names": ["west"]}}
+    s = build_settings({"timing.bsm_follows": "rsu_cam,west"}, base, {})
+    assert s.timing.bsm_follows == ["rsu_cam", "west"] and build_settings({}, base, {}).timing.bsm_follows == []
+    with pytest.raises(ConfigError) as err:
+        build_settings({"timing.bsm_follows": "rsu_cma,lidar"}, base, {})
+    assert err.value.problems == [
+        ("timing.bsm_follows", "'rsu_cma' is none of the RSU's sensors (did you mean 'rsu_cam'?) (camera.names, "
+                               "radar.names: rsu_cam, west)"),
+        ("timing.bsm_follows", "'lidar' is none of the RSU's sensors (camera.names, radar.names: rsu_cam, west)")]

@@ -38,6 +38,7 @@ from rsu_app.perception.geo import VEHICLE_SIZE, _box_corners
 from rsu_app.perception.tracker import GroundDetection, Tracker, TrackerConfig, TrackerError
 from rsu_app.perception_stage import DetectionZone, PerceptionStage, covariance_ellipse
 from rsu_app.spat_stage import MapStage, SpatStage
+from rsu_app.timing import DETECT as DETECT_STAGE
 from rsu_app.timing import LatencyModel
 
 CAM = Camera(CameraSpec("rsu_cam", 6.5, 6.5, 6.0, yaw=225.0, pitch=-14.0, width=640, height=480, fov_deg=100.0),
@@ -109,26 +110,27 @@ class Oracle:
 
 
 def make_core(policy="fixed", latencies=None, inference_s=None, vehicles=(CAV, EV), hits=3, max_missed=5,
-              spat=None, map_stage=None, trace=False):
-    latency = LatencyModel("lockstep", policy, latencies if latencies is not None else
-                           {"detect": 0.05, "encode": 0.001, "sign": 0.002}, inference_s)
+              spat=None, map_stage=None, trace=False, latency=None, bsm_follows=()):
+    latency = latency or LatencyModel("lockstep", policy, latencies if latencies is not None else
+                                      {"detect": 0.05, "encode": 0.001, "sign": 0.002}, inference_s)
     oracle = Oracle()
     perception = PerceptionStage(oracle, Tracker(TrackerConfig(confirm_hits=hits, max_missed=max_missed)),
                                  DetectionZone(60.0, INTERSECTION, True, 1.5), 0.5)
     bsm = BsmStage("rsu", ORIGIN, EPOCH, b"seed-salt", Envelope(None), latency)
-    core = RsuCore(latency, perception, bsm, spat, map_stage, trace_detections=trace)
+    core = RsuCore(latency, perception, bsm, spat, map_stage, trace_detections=trace, bsm_follows=bsm_follows)
     return core, oracle, list(vehicles)
 
 
-def run(core, vehicles, stop=4.0, step=0.01, rate=10.0, records=None, ahead=True):
-    """Drive the core like the master: a tick every step, a frame every 1/rate, seen at its tick; the trace
-    records it makes go to `records` (taken after every step, as the app does). `ahead`: as the app, tell the
-    core that nothing still to come is before the next step (`RsuCore.step`'s horizon)."""
+def run(core, vehicles, stop=4.0, step=0.01, rate=10.0, records=None, ahead=True, frames_until=math.inf):
+    """Drive the core like the master: a tick every step, a frame every 1/rate (none after `frames_until`),
+    seen at its tick; the trace records it makes go to `records` (taken after every step, as the app does).
+    `ahead`: as the app, tell the core that nothing still to come is before the next step (`RsuCore.step`'s
+    horizon)."""
     out, frame_id = [], 0
     for k in range(int(round(stop / step)) + 1):
         t = round(k * step, 9)
         frames = []
-        if abs(t * rate - round(t * rate)) < 1e-6:
+        if abs(t * rate - round(t * rate)) < 1e-6 and t <= frames_until:
             frames.append(FakeFrame("rsu_cam", frame_id, t, Pixels(t, vehicles)))
             frame_id += 1
         out += core.step(t, frames, horizon=t + step if ahead else None)
@@ -168,6 +170,69 @@ def test_bsms_follow_the_vehicles_at_ten_hertz_per_track_with_stable_ids():
         assert b.speed == pytest.approx(veh.v, abs=0.3)
         assert b.heading == pytest.approx((90 - math.degrees(veh.yaw)) % 360, abs=1.0)
         assert 0 < b.semi_major < 1.0 and b.semi_minor <= b.semi_major
+
+
+class JitteryDetector(LatencyModel):
+    """`fixed` latencies, but the detector's time per frame goes round `detect_s` (as a real one's varies): the
+    detections of consecutive frames are ready a little more or less than a frame period apart."""
+
+    def __init__(self, detect_s=(0.04, 0.06, 0.08, 0.05, 0.07)):
+        super().__init__("lockstep", "fixed", {"encode": 0.001, "sign": 0.002})
+        self.detect_s, self.n = detect_s, 0
+
+    def stage(self, name, compute_s):
+        if name != DETECT_STAGE:
+            return super().stage(name, compute_s)
+        self.n += 1
+        return self.detect_s[(self.n - 1) % len(self.detect_s)]
+
+
+def _slot_times(sent):
+    return sorted({round(stamp_s(tx.stamps[ENCODE]) - 0.001, 9) for tx, _ in sent})
+
+
+@pytest.mark.parametrize("follows", [(), ("rsu_cam",)])
+def test_bsm_slots_that_follow_the_camera_send_each_detection_at_once(follows):
+    """A free-running 10 Hz clock (phase: the first detection) leaves each later detection waiting for the next
+    slot, up to a period when the detector's time varies; slots that follow the camera send every frame's
+    detections as they are ready (stage 2 = encode + sign), still one slot a period (J2945/1 10 Hz, ANCHORS I1)."""
+    core, _, vehicles = make_core(latency=JitteryDetector(), bsm_follows=follows)
+    sent = bsms(run(core, vehicles, stop=4.0))
+    waits = [stamp_s(tx.stamps[ENCODE] - tx.stamps[DETECT_END]) - 0.001 for tx, _ in sent]  # less encoding
+    gaps = np.diff(_slot_times(sent))
+    if follows:
+        assert max(waits) == pytest.approx(0.0, abs=1e-6)  # each BSM encoded the instant its frame is known
+        # a slot a frame: as far apart as the detections (0.07-0.12 s here), ten a second on average
+        assert len(sent) > 60 and gaps.min() >= 0.07 - 1e-6 and gaps.max() <= 0.12 + 1e-6
+        assert np.mean(gaps) == pytest.approx(0.1, abs=0.002)
+    else:  # the clock: slots exactly a period apart, detections waiting for them (the test can tell the two apart)
+        assert np.allclose(gaps, 0.1, atol=1e-6) and max(waits) > 0.05
+
+
+def test_following_slots_repeat_bit_for_bit():
+    a = run(*make_core(latency=JitteryDetector(), bsm_follows=("rsu_cam",))[::2], stop=3.0)
+    b = run(*make_core(latency=JitteryDetector(), bsm_follows=("rsu_cam",))[::2], stop=3.0)
+    assert len(a) == len(b) > 20
+    assert [(x.key, x.payload, x.t_sim, x.stamps) for x in a] == [(x.key, x.payload, x.t_sim, x.stamps) for x in b]
+
+
+def test_following_a_faster_camera_still_gives_one_slot_a_period():
+    core, _, vehicles = make_core(latencies={"detect": 0.01, "encode": 0.001, "sign": 0.002},
+                                  bsm_follows=("rsu_cam",))
+    sent = bsms(run(core, vehicles, stop=3.0, step=1 / 300, rate=30.0))  # 30 Hz: every third frame opens one
+    gaps = np.diff(_slot_times(sent))
+    assert len(gaps) > 20 and np.allclose(gaps, 0.1, atol=1e-6), gaps
+
+
+def test_without_the_followed_detections_the_clock_keeps_the_tracks_broadcast():
+    """The camera stops (a dropped link, a busy detector): the tracks it left are still broadcast, a slot every
+    period and a quarter (the clock waits that long for a detection that is a little late)."""
+    core, _, vehicles = make_core(bsm_follows=("rsu_cam",), max_missed=5)
+    sent = bsms(run(core, vehicles, stop=3.0, frames_until=1.5))
+    slots = _slot_times(sent)
+    after = [s for s in slots if s > 1.55 + 1e-6]
+    assert len(after) >= 10 and np.allclose(np.diff(after), 0.125, atol=1e-6), after
+    assert np.allclose(np.diff([s for s in slots if s <= 1.55 + 1e-6]), 0.1, atol=1e-6)
 
 
 def test_sec_mark_and_stamps_follow_the_latency_policy():
