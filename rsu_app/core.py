@@ -18,14 +18,14 @@ and when depends only on simulation times and data stamped <= t (lockstep +
            predicted to the slot's time, then encode + sign (stage 2). With
            `bsm_follows` (sensor names) the slots follow those sensors' detections
            instead: a READY of one of them opens a slot at once unless its frame
-           was taken less than the period (less FOLLOW_SLACK of it) after the frame
+           was taken less than the period (less FOLLOW_EARLY of it) after the frame
            that opened the last one (a camera faster than the BSM rate: one frame
-           a period); without such a READY a slot comes the period plus
-           FOLLOW_SLACK after the last slot (the tracks a sensor that stopped left
-           are still broadcast; a detection a little late is not overtaken). A
-           free-running clock's phase is fixed by the first READY of any sensor,
-           so it leaves a camera's detection waiting up to a period (half of one
-           on average) for its slot.
+           a period). Without such a READY the clock takes over: a slot the period
+           plus FOLLOW_WAIT of it after a slot a detection opened (its detector's
+           time per frame varies), then every period (the tracks of a sensor that
+           stopped are still broadcast). A free-running clock's phase is fixed by
+           the first READY of any sensor, so it leaves a camera's detection
+           waiting up to a period (half of one on average) for its slot.
     STATUS a controller status arrived.
     SPAT / MAP  at their rates from the run's start.
 
@@ -92,11 +92,14 @@ READY, STATUS, FRAME, BSM, SPAT, MAP, ACK, SRM, SSM = range(9)
 # s: how far before the horizon work ahead stops. Only float noise separates the horizon (t + step) from the
 # time of the master's next frame; anything this close to it is done at the next tick, as without a horizon.
 AHEAD_MARGIN = 1e-9
-# share of the BSM period by which slots that follow a sensor's detections may come early (a detection a little
-# earlier than a period after the last slot still opens one) or late (the clock's slot waits this much longer for
-# the detection): above the jitter of a detector's time per frame, below half a period so a sensor faster than
-# the BSM rate still gives one slot a period (a 30 Hz camera: every third frame).
-FOLLOW_SLACK = 0.25
+# Slots that follow a sensor's detections, in shares of the BSM period. EARLY: a frame taken this much less than
+# a period after the one that opened the last slot still opens one (frames are taken on the loop's steps); below
+# a half, so a sensor faster than the BSM rate gives one slot a period (a 30 Hz camera: every third frame).
+# WAIT: the clock waits this much more than a period for the next detection before it sends the tracks as
+# known: the detector's time per frame varies (60-130 ms for 10 Hz frames on llvmpipe at RTF 1), and a clock
+# slot just before a detection sends the tracks again only for the detection to follow it.
+FOLLOW_EARLY = 0.25
+FOLLOW_WAIT = 0.5
 
 
 @dataclass
@@ -194,12 +197,19 @@ class RsuCore:
             elif kind == FRAME:
                 self._frame(when, payload)
             elif kind == BSM and self.bsm_follows:
-                if payload == self._slot_gen:  # else a slot opened by a detection took its place
+                gen, opened = payload
+                ready = self._followed_ready_by(base) if gen == self._slot_gen else None
+                if ready is not None and ready > when:
+                    # realtime: the loop comes late to the clock's slot (the detector held it) and the detection
+                    # it waited for is ready by now: it goes first, and opens a slot or lets this one run
+                    self._push(ready, BSM, payload)
+                elif gen == self._slot_gen:  # else a slot opened by a detection took its place
                     self.counters.bsm_slots += 1
                     out += self._bsm_slot(base)
                     self._last_slot = base
                     self._slot_gen += 1
-                    self._push(base + self.bsm_period * (1.0 + FOLLOW_SLACK), BSM, self._slot_gen)
+                    wait = self.bsm_period * (1.0 + FOLLOW_WAIT if opened else 1.0)
+                    self._push(base + wait, BSM, (self._slot_gen, False))
             elif kind == BSM:
                 start, n = payload
                 self.counters.bsm_slots += 1
@@ -332,16 +342,22 @@ class RsuCore:
             # the rate is kept on the frames' own times, which are regular, not on when their detections are
             # ready, which varies with the detector's time per frame
             opens = bool(followed) and (self._last_followed is None or max(followed) >= self._last_followed
-                                        + self.bsm_period * (1.0 - FOLLOW_SLACK) - EPS)
+                                        + self.bsm_period * (1.0 - FOLLOW_EARLY) - EPS)
             if opens or self._last_slot is None:
                 if opens:
                     self._last_followed = max(followed)
                 self._slot_gen += 1  # the pending slot of the clock gives way to this one
-                self._push(when, BSM, self._slot_gen)
+                self._push(when, BSM, (self._slot_gen, opens))
                 self._last_slot = when
         elif self._bsm_start is None:
             self._bsm_start = when
             self._push(when, BSM, (when, 0))
+
+    def _followed_ready_by(self, t: float) -> float | None:
+        """The time of the earliest READY still queued for t or before that brings a followed sensor's detections."""
+        times = [when for when, kind, _, key in self._events if kind == READY and when <= t + EPS
+                 and any(r.camera in self.bsm_follows for r in self._pending_ready.get(key, ()))]
+        return min(times, default=None)
 
     def _bsm_id(self, track_id: int) -> str | None:
         """The temporary id the BSMs of a track carry (None without a BSM stage: nothing is broadcast)."""

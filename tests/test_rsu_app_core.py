@@ -225,13 +225,15 @@ def test_following_a_faster_camera_still_gives_one_slot_a_period():
 
 
 def test_without_the_followed_detections_the_clock_keeps_the_tracks_broadcast():
-    """The camera stops (a dropped link, a busy detector): the tracks it left are still broadcast, a slot every
-    period and a quarter (the clock waits that long for a detection that is a little late)."""
+    """The camera stops (a dropped link, a busy detector): the tracks it left are still broadcast, the first slot
+    after the last detection's a period and a half later (the clock waits that long for a detection that is a
+    little late), then one every period."""
     core, _, vehicles = make_core(bsm_follows=("rsu_cam",), max_missed=5)
     sent = bsms(run(core, vehicles, stop=3.0, frames_until=1.5))
     slots = _slot_times(sent)
     after = [s for s in slots if s > 1.55 + 1e-6]
-    assert len(after) >= 10 and np.allclose(np.diff(after), 0.125, atol=1e-6), after
+    assert len(after) >= 10 and after[0] == pytest.approx(1.55 + 0.15, abs=1e-6), after
+    assert np.allclose(np.diff(after), 0.1, atol=1e-6), after
     assert np.allclose(np.diff([s for s in slots if s <= 1.55 + 1e-6]), 0.1, atol=1e-6)
 
 
@@ -298,6 +300,36 @@ def test_realtime_a_late_loop_sends_one_late_bsm_per_track_not_a_burst():
     late = bsms(core.step(0.65))  # the loop comes back 0.6 s later: the slots in between are gone
     assert len(late) == 1 and core.counters.slots_skipped == 5
     assert late[0][1].sec_mark_ms == sec_mark_ms(0.65, EPOCH)  # sent now, describing now
+
+
+class SlowSecondFrame(LatencyModel):
+    """Realtime, with the detector's times set: the first frame 0.05 s, the second 0.22 s (the app's loop is
+    held meanwhile: it next turns when that detection is done)."""
+
+    def __init__(self):
+        super().__init__("realtime", "realtime", {}, None)
+        self.detect_s = [0.05, 0.22]
+
+    def stage(self, name, compute_s):
+        return self.detect_s.pop(0) if name == DETECT_STAGE else 0.0
+
+
+def test_realtime_a_clock_slot_the_detector_held_back_gives_way_to_the_detection():
+    """Following the camera in realtime, the clock's slot (due 1.5 periods after the last one) falls while the
+    detector works on a slow frame; the loop comes to it only when the detection is ready. One slot goes then,
+    with the new detection, not the clock's with the tracks as they were and a second just after it."""
+    latency = SlowSecondFrame()
+    perception = PerceptionStage(Oracle(), Tracker(TrackerConfig(confirm_hits=1)),
+                                 DetectionZone(60.0, INTERSECTION, True, 1.5), 0.5)
+    core = RsuCore(latency, perception, BsmStage("rsu", ORIGIN, EPOCH, b"s", Envelope(None), latency),
+                   realtime=True, bsm_follows=("rsu_cam",))
+    core.step(0.0, [FakeFrame("rsu_cam", 0, 0.0, Pixels(0.0, [CAV]))])
+    first = bsms(core.step(0.05))  # the first detection opens the first slot
+    assert len(first) == 1 and stamp_s(first[0][0].stamps[FRAME]) == 0.0
+    assert bsms(core.step(0.1, [FakeFrame("rsu_cam", 1, 0.1, Pixels(0.1, [CAV]))])) == []  # ready at 0.32
+    late = bsms(core.step(0.32))  # the clock's slot was due at 0.2
+    assert [stamp_s(tx.stamps[FRAME]) for tx, _ in late] == [pytest.approx(0.1)]
+    assert core.counters.bsm_slots == 2
 
 
 def test_realtime_stages_are_charged_at_the_clocks_rate_when_they_end():
