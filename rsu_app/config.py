@@ -187,8 +187,9 @@ class TimingSettings:
                                                            positive=True, high=100.0))
     bsm_follows: list[str] = field(default_factory=list, metadata=_key(
         "cameras or radars (of camera.names, radar.names) whose detections open a BSM slot at once, at most one "
-        "a period (a quarter of it early or late allowed); empty: slots every 1/bsm_rate_hz from the first "
-        "detection of any sensor, each detection waiting for the next (up to a period)"))
+        "a period (a frame a quarter period early still opens one; without one the clock sends after a period and "
+        "a half); empty: slots every 1/bsm_rate_hz from the first detection of any sensor, each detection waiting "
+        "for the next (up to a period)"))
 
 
 @dataclass
