@@ -150,15 +150,15 @@ def test_where_each_renderer_draws_a_point():
 
 _SHADOWS = """
 import os
-from master.world.camera import Lighting
+from master.world.camera import Camera, Lighting
 layout = load_scenario(ROOT / "scenarios" / "ima_world.toml").world
 with World(layout, renderer="egl") as w:
     w.pose_vehicle("cav", 1.75, -20.0, np.pi / 2)
     w.pose_vehicle("ev", -25.0, -1.75, 0.0)
     cam = w.cameras["rsu_cam"]
     flat, shadowed = cam.render(0.0), cam.render(0.0, Lighting(shadow=True))
-    os.environ["V2I_EGL_SHADOWS"] = "always"
-    always = cam.render(0.0)
+    os.environ["V2I_EGL_SHADOWS"] = "always"  # read when a camera is made
+    always = Camera(cam.spec, cam.client, cam.renderer).render(0.0)
 lift = flat.rgb.astype(int) - shadowed.rgb.astype(int)
 print("lift", lift.min(), np.mean(lift.max(axis=2) > 10), np.array_equal(flat.seg, shadowed.seg),
       np.array_equal(always.rgb, shadowed.rgb))

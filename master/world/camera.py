@@ -70,6 +70,11 @@ class Camera:
 
     def __init__(self, spec: CameraSpec, client: int | None, renderer: int = pb.ER_TINY_RENDERER):
         self.spec, self.client, self.renderer = spec, client, renderer
+        self._shadow_map_always = False  # EGL: draw its shadow map for every frame (V2I_EGL_SHADOWS=always)
+        if client is not None and renderer == pb.ER_BULLET_HARDWARE_OPENGL:
+            from master.world.renderer import egl_shadows_always
+
+            self._shadow_map_always = egl_shadows_always()  # read once: a typo is refused before any frame
         keep_freed_memory()  # process-wide: each frame's buffers reused, not faulted in afresh (its docstring)
         self.frame_id = 0
         self.render_times: list[float] = []
@@ -132,12 +137,10 @@ class Camera:
         it draws through its projective-texture path, which skips the shadow map. The scene's bodies carry
         colours and no textures, so that path, projecting from the camera itself, draws the same picture less
         its shadows (no pixel darker: tests/test_world_renderer.py). `V2I_EGL_SHADOWS=always` draws the shadow
-        map for every frame, as before (renderer.SHADOWS_ENV)."""
-        from master.world.renderer import egl_shadows_always
-
+        map for every frame, as before (renderer.SHADOWS_ENV, read when the camera is made)."""
         flags = 0 if segmentation else pb.ER_NO_SEGMENTATION_MASK
         args = lighting.arguments()
-        if self.renderer == pb.ER_BULLET_HARDWARE_OPENGL and not lighting.shadow and not egl_shadows_always():
+        if self.renderer == pb.ER_BULLET_HARDWARE_OPENGL and not lighting.shadow and not self._shadow_map_always:
             flags |= pb.ER_USE_PROJECTIVE_TEXTURE
             args.update(projectiveTextureView=self._view, projectiveTextureProj=self._proj)
         return flags, args
