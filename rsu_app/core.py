@@ -20,7 +20,8 @@ and when depends only on simulation times and data stamped <= t (lockstep +
            instead: a READY of one of them opens a slot at once unless its frame
            was taken less than the period (less FOLLOW_EARLY of it) after the frame
            that opened the last one (a camera faster than the BSM rate: one frame
-           a period). Without such a READY the clock takes over: a slot the period
+           a period), no sooner than FOLLOW_MIN_GAP of a period after the last
+           slot. Without such a READY the clock takes over: a slot the period
            plus FOLLOW_WAIT of it after a slot a detection opened (its detector's
            time per frame varies), then every period (the tracks of a sensor that
            stopped are still broadcast). A free-running clock's phase is fixed by
@@ -100,6 +101,10 @@ AHEAD_MARGIN = 1e-9
 # slot just before a detection sends the tracks again only for the detection to follow it.
 FOLLOW_EARLY = 0.25
 FOLLOW_WAIT = 0.5
+# No two slots closer than this share of a period: a detection ready just after the clock's slot (its sensor
+# drops frames, or its detector was slow) waits for the rest of it, not a whole period, and the channel never
+# carries a track's BSMs twice in a few milliseconds.
+FOLLOW_MIN_GAP = 0.5
 
 
 @dataclass
@@ -346,9 +351,11 @@ class RsuCore:
             if opens or self._last_slot is None:
                 if opens:
                     self._last_followed = max(followed)
+                at = when if self._last_slot is None else max(when, self._last_slot
+                                                              + self.bsm_period * FOLLOW_MIN_GAP)
                 self._slot_gen += 1  # the pending slot of the clock gives way to this one
-                self._push(when, BSM, (self._slot_gen, opens))
-                self._last_slot = when
+                self._push(at, BSM, (self._slot_gen, opens))
+                self._last_slot = at
         elif self._bsm_start is None:
             self._bsm_start = when
             self._push(when, BSM, (when, 0))

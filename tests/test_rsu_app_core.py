@@ -209,6 +209,25 @@ def test_bsm_slots_that_follow_the_camera_send_each_detection_at_once(follows):
         assert np.allclose(gaps, 0.1, atol=1e-6) and max(waits) > 0.05
 
 
+def test_a_detection_just_after_the_clocks_slot_waits_for_the_rest_of_half_a_period():
+    """The camera gives a frame every 0.27 s (a renderer that cannot keep up: TinyRenderer at RTF 1). Between
+    them the clock sends (0.15 s after a detection's slot, then every 0.1 s); a detection ready less than half
+    a period after the clock's slot waits for the rest of it (not a whole period), so no two slots are closer
+    than half a period."""
+    core, _, vehicles = make_core(bsm_follows=("rsu_cam",), latencies={"detect": 0.08, "encode": 0.001,
+                                                                        "sign": 0.002})
+    sent = bsms(run(core, vehicles, stop=4.0, rate=1 / 0.27))  # frame k at 0.27 k, its detections 0.08 s after
+    gaps = np.diff(_slot_times(sent))
+    assert len(gaps) > 20 and gaps.min() >= 0.05 - 1e-6, gaps
+    first = {}  # frame time -> how long its detections waited for their first slot (later ones are the clock's)
+    for tx, _ in sent:
+        wait = stamp_s(tx.stamps[ENCODE] - tx.stamps[DETECT_END]) - 0.001
+        first[tx.stamps[FRAME]] = min(wait, first.get(tx.stamps[FRAME], wait))
+    waits = np.array(list(first.values()))
+    # e.g. frame 1 ready at 0.35, 0.02 s after the clock's slot of 0.33: sent at 0.38; frame 2 at 0.62 at once
+    assert waits.max() <= 0.05 + 1e-6 and (waits > 0.01).any() and (np.abs(waits) < 1e-6).any(), waits
+
+
 def test_following_slots_repeat_bit_for_bit():
     a = run(*make_core(latency=JitteryDetector(), bsm_follows=("rsu_cam",))[::2], stop=3.0)
     b = run(*make_core(latency=JitteryDetector(), bsm_follows=("rsu_cam",))[::2], stop=3.0)

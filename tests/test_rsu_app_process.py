@@ -189,7 +189,12 @@ def test_ids_counters_and_stamps(case_run):
         by_id[b.id].append(b)
     for msgs in by_id.values():
         assert [b.msg_count for b in msgs] == [(msgs[0].msg_count + i) % 128 for i in range(len(msgs))]
-        assert np.allclose(np.diff([b.t for b in msgs]), 0.1, atol=0.0015)  # secMark: 10 Hz, ms resolution
+        gaps = np.diff([b.t for b in msgs]) / 0.1  # secMark: the 10 Hz slots, ms resolution
+        assert np.allclose(gaps, np.round(gaps), atol=0.015) and gaps.min() > 0.5, gaps
+        # a slot skipped only where the vehicle leaves the picture under the pole (the picture's bottom edge meets
+        # the road about 4 m out): a frame that misses it there pauses its BSMs (PerceptionStage.broadcastable)
+        for before, gap in zip(msgs, gaps):
+            assert gap < 1.5 or math.dist((before.x, before.y), POLE) < 8.0, (before.t, before.x, before.y, gap)
     stamped = 0
     for b in bsms:
         s = b.stamps
@@ -391,5 +396,7 @@ def test_realtime_the_app_stamps_on_the_masters_clock(tmp_path, fmu_dir):
         by_id[b.id].append(b.t)
     longest = max(by_id.values(), key=len)
     assert len(longest) >= 10
-    # slots keep their 100 ms grid when the loop is on time; a late loop sends a slot late, never twice
-    assert np.all(np.diff(longest) > 0.05), np.diff(longest)
+    # the slots follow the camera's detections (scenarios/apps/rsu.toml: timing.bsm_follows), the clock sends
+    # between them, and no two slots are closer than half a period (rsu_app.core.FOLLOW_MIN_GAP): a late loop
+    # sends a slot late, never twice (secMark: whole milliseconds)
+    assert np.all(np.diff(longest) >= 0.05 - 1e-3), np.diff(longest)
