@@ -35,8 +35,15 @@
    detector (onnx and torch, 1 thread, on one 640x480 frame); beside the 2
    cores this machine has. The AV app (planner, about 2.5 ms a plan at 10 Hz)
    and the bus are not in it.
+6. The realtime case study at RTF 1, the issue's test: `v2i run
+   scenarios/ima_case_study.toml --mode realtime --rtf 1` per renderer
+   (`--realtime-runs` runs each, one after the other, after parts 1-5: the
+   machine otherwise idle), with both apps as processes on zenoh: steps late of
+   all, lag p99, camera frames drawn, end to end (camera frame -> command
+   applied) p50 / p99, collision, WARNING lines; beside the floors (<= 1 % late,
+   lag p99 <= 20 ms, end to end p99 <= 150 ms, no collision, no WARNING).
 
-Every figure is the median over repeats (min too). Results go to JSON
+Every figure of parts 1-5 is the median over repeats (min too); part 6 gives each run's. Results go to JSON
 (default benchmarks/results/world.json). `--quick`: one repeat, fewer frames.
 """
 from __future__ import annotations
@@ -266,6 +273,62 @@ def bench_budget(layout: WorldLayout, frames: int) -> dict[str, float]:
     return out
 
 
+CASE_STUDY = ROOT / "scenarios" / "ima_case_study.toml"
+# the issue's floors for the realtime case study at RTF 1 (issue 41): what a run must hold
+REALTIME_FLOORS = {"late_share": 0.01, "lag_p99_ms": 20.0, "e2e_p99_ms": 150.0}
+
+
+def realtime_figures(run_dir: Path, output: str) -> dict:
+    """One realtime run's figures from its folder (metadata.json, metrics.json) and what it printed; KeyError
+    naming the file and key where the run left none (a failed run)."""
+    import json
+
+    def load(name: str) -> dict:
+        path = run_dir / name
+        try:
+            return json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise KeyError(f"{path}: {exc}") from None
+
+    meta, metrics = load("metadata.json"), load("metrics.json")
+    try:
+        rt, e2e = meta["realtime"], metrics["latency_ms"]["e2e"]
+        steps = meta["steps_done"]
+        cams = meta.get("world", {}).get("cameras", {})
+        out = {"status": meta["status"], "steps": steps, "late": rt["deadline_misses"],
+               "late_share": rt["deadline_misses"] / max(steps, 1), "lag_p99_ms": rt["lag_s"]["p99"] * 1e3,
+               "lag_max_ms": rt["lag_s"]["max"] * 1e3, "loop_nice": (rt.get("loop_nice") or {}).get("nice"),
+               "camera_frames": sum(c.get("frames", 0) for c in cams.values()),
+               "camera_dropped": sum(c.get("dropped", 0) for c in cams.values()),
+               "e2e_p50_ms": e2e.get("p50"), "e2e_p99_ms": e2e.get("p99"), "e2e_n": e2e.get("n", 0),
+               "stages_p50_ms": {k: v.get("p50") for k, v in metrics["latency_ms"].items() if k != "e2e"},
+               "collision": metrics["collision"],
+               "warnings": sum("WARNING" in line for line in output.splitlines())}
+    except KeyError as exc:
+        raise KeyError(f"{run_dir}: no {exc} in its metadata.json / metrics.json") from None
+    out["meets_floors"] = (out["status"] == "completed" and out["late_share"] <= REALTIME_FLOORS["late_share"]
+                           and out["lag_p99_ms"] <= REALTIME_FLOORS["lag_p99_ms"] and out["e2e_p99_ms"] is not None
+                           and out["e2e_p99_ms"] <= REALTIME_FLOORS["e2e_p99_ms"] and not out["collision"]
+                           and out["warnings"] == 0)
+    return out
+
+
+def bench_realtime_case_study(renderer: str, folder: Path) -> dict:
+    """`v2i run` of the case study in realtime at RTF 1 with `renderer` into `folder`; its figures."""
+    import subprocess
+
+    v2i = Path(sys.executable).with_name("v2i")
+    cmd = [str(v2i), "run", str(CASE_STUDY), "--mode", "realtime", "--rtf", "1", "--set",
+           f"world.renderer={renderer}", "--out", str(folder)]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)
+    output = done.stdout + done.stderr
+    try:
+        return realtime_figures(folder, output)
+    except KeyError as exc:
+        tail = "\n".join(output.splitlines()[-5:])
+        return {"status": f"failed (exit {done.returncode}): {exc}; {tail}", "meets_floors": False}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -274,9 +337,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sim-seconds", type=float, default=4.0,
                     help="simulated seconds of each case-study run in part 4 (default 4)")
     ap.add_argument("--quick", action="store_true", help="smoke test: 1 repeat, few frames and scans")
+    ap.add_argument("--realtime-runs", type=int, default=3,
+                    help="part 6: realtime case-study runs per renderer (default 3; --quick 1; 0: none)")
     args = ap.parse_args(argv)
     if args.quick:
         args.repeats, args.sim_seconds = 1, min(args.sim_seconds, 0.5)
+        args.realtime_runs = min(args.realtime_runs, 1)
     frames = {320: 3, 640: 2, 1280: 1} if args.quick else {320: 20, 640: 8, 1280: 4}
     scans = {1024: 3, 2048: 1} if args.quick else {1024: 20, 2048: 6}
     steps = {2: 50, 20: 20, 200: 5} if args.quick else {2: 2000, 20: 500, 200: 100}
@@ -386,10 +452,35 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{'total, ' + r_ + ' (with the faster detector)':<44} {total:8.3f}")
         budget.append({"item": f"total, {r_} (with the faster detector)", "cpu_s_per_s": total})
 
+    realtime = []
+    if args.realtime_runs > 0:
+        import tempfile
+
+        print()
+        print(f"6. the realtime case study at RTF 1 (`v2i run {CASE_STUDY.relative_to(ROOT)} --mode realtime --rtf 1`, "
+              f"{args.realtime_runs} run(s) per renderer); floors: <= 1 % of steps late, lag p99 <= 20 ms, "
+              f"end to end p99 <= 150 ms, no collision, no WARNING")
+        head = (f"{'renderer':<9} {'run':>3} {'late':>9} {'lag p99':>8} {'frames':>11} {'e2e p50':>8} "
+                f"{'e2e p99':>8} {'collision':>9} {'warn':>4} {'floors':>6}")
+        print(head + "\n" + "-" * len(head))
+        with tempfile.TemporaryDirectory(prefix="v2i-bench-rt-") as tmp:
+            for r_ in RENDERERS:
+                for i in range(args.realtime_runs):
+                    fig = bench_realtime_case_study(r_, Path(tmp) / f"{r_}-{i}")
+                    realtime.append({"renderer": r_, "run": i + 1, **fig})
+                    if "steps" not in fig:
+                        print(f"{r_:<9} {i + 1:>3} {fig['status']}")
+                        continue
+                    print(f"{r_:<9} {i + 1:>3} {fig['late']:>4}/{fig['steps']:<4} {fig['lag_p99_ms']:8.1f} "
+                          f"{fig['camera_frames']:>4} ({fig['camera_dropped']:>3}) {fig['e2e_p50_ms'] or 0:8.0f} "
+                          f"{fig['e2e_p99_ms'] or 0:8.0f} {str(fig['collision']).lower():>9} {fig['warnings']:>4} "
+                          f"{'met' if fig['meets_floors'] else 'NOT':>6}")
+
     report = {"benchmark": "world", "machine": info,
               "settings": {"repeats": args.repeats, "quick": args.quick, "scenario": str(SCENARIO),
                            "poses": "case study at t = 4.8 s", "sensor_rate_hz": SENSOR_HZ},
               "cameras": cameras, "lidars": lidars, "posing": posing, "loop": loop, "budget": budget,
+              "realtime_case_study": {"floors": REALTIME_FLOORS, "runs": realtime},
               "wall_s": time.perf_counter() - t_start}
     write_report(args.json, report)
     return 0
