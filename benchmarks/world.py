@@ -50,10 +50,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import os
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -205,8 +208,6 @@ PLACES = (("workers", True), ("loop thread", False))  # where the camera and lid
 def bench_loop_rtf(camera: bool, lidar: bool, sim_seconds: float, renderer: str = "tiny",
                    workers: bool = True) -> float:
     """Real-time factor of a lockstep run of the case-study world with the given sensors."""
-    import tempfile
-
     from master.run.cosim import CoSimulation
     from master.scenario.loader import load_scenario
 
@@ -218,8 +219,6 @@ def bench_loop_rtf(camera: bool, lidar: bool, sim_seconds: float, renderer: str 
         world.cameras = []
     if not lidar:
         world.vehicles = {n: dataclasses.replace(v, lidar=None) for n, v in world.vehicles.items()}
-    import json
-
     with tempfile.TemporaryDirectory() as d:
         result = CoSimulation(sc, Path(d) / "run", quiet=True).run()
         if result.status != "completed":
@@ -281,7 +280,6 @@ REALTIME_FLOORS = {"late_share": 0.01, "lag_p99_ms": 20.0, "e2e_p99_ms": 150.0}
 def realtime_figures(run_dir: Path, output: str) -> dict:
     """One realtime run's figures from its folder (metadata.json, metrics.json) and what it printed; KeyError
     naming the file and key where the run left none (a failed run)."""
-    import json
 
     def load(name: str) -> dict:
         path = run_dir / name
@@ -315,8 +313,6 @@ def realtime_figures(run_dir: Path, output: str) -> dict:
 
 def bench_realtime_case_study(renderer: str, folder: Path) -> dict:
     """`v2i run` of the case study in realtime at RTF 1 with `renderer` into `folder`; its figures."""
-    import subprocess
-
     v2i = Path(sys.executable).with_name("v2i")
     cmd = [str(v2i), "run", str(CASE_STUDY), "--mode", "realtime", "--rtf", "1", "--set",
            f"world.renderer={renderer}", "--out", str(folder)]
@@ -454,8 +450,6 @@ def main(argv: list[str] | None = None) -> int:
 
     realtime = []
     if args.realtime_runs > 0:
-        import tempfile
-
         print()
         print(f"6. the realtime case study at RTF 1 (`v2i run {CASE_STUDY.relative_to(ROOT)} --mode realtime --rtf 1`, "
               f"{args.realtime_runs} run(s) per renderer); floors: <= 1 % of steps late, lag p99 <= 20 ms, "
